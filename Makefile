@@ -1,0 +1,18 @@
+# The two commands of the README: `make setup` installs everything into .venv,
+# `make test` lints and runs the whole suite. `make demo` runs the main job.
+PY ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+
+.PHONY: setup test demo
+setup:
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install --upgrade pip
+	$(BIN)/pip install -e '.[dev]'
+
+test:
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest
+
+demo:
+	$(BIN)/python -m archhead_addon demo

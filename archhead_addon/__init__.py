@@ -1,0 +1,1 @@
+"""ArchHead core (never imports bpy)."""

@@ -1,0 +1,72 @@
+// ArchHead splat kernel: plain C ABI, called through ctypes (numpy) and wrapped by a
+// torch.autograd.Function. All arrays are C-contiguous float32 unless noted.
+//
+// Conventions
+//   camera     OpenCV: x right, y down, z forward; viewmat is world-to-camera, 4x4 row-major
+//              (its 3x3 block may be any invertible linear map, e.g. include an object
+//              transform); K is 3x3 row-major in pixels; pixel (i, j) has its centre at
+//              (i + 0.5, j + 0.5) in the coordinates K maps to.
+//   gaussians  means (N,3); log_scales (N,3), clamped to [AH_LOG_SCALE_MIN, AH_LOG_SCALE_MAX]
+//              before exp; quats (N,4) w,x,y,z, normalised inside (a zero quaternion is the
+//              identity); opacity_logits (N); colors (N,3) (already evaluated from SH).
+//   outputs    rgb (H,W,3) composited over the background; alpha (H,W) = 1 - transmittance;
+//              depth (H,W) = sum_i w_i z_i, the alpha-weighted camera z (divide by alpha for
+//              the expected depth; the Python layer does).
+#ifndef ARCHHEAD_SPLAT_H
+#define ARCHHEAD_SPLAT_H
+
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define AH_SPLAT_ABI_VERSION 1
+#define AH_LOG_SCALE_MIN -23.0f  // scale 1e-10
+#define AH_LOG_SCALE_MAX 11.5f   // scale ~1e5
+
+typedef struct {
+    int32_t width, height;
+    float viewmat[16];
+    float K[9];
+    float near_plane, far_plane;
+    float eps2d;          // isotropic dilation of the 2D covariance, px^2 (3DGS: 0.3)
+    int32_t antialiased;  // 1: scale opacity by sqrt(det(cov) / det(cov + eps2d I))
+    float background[3];
+    int32_t num_threads;  // <= 0: OpenMP default
+} ah_splat_params;
+
+// Per-Gaussian projection (exposed for tests and diagnostics). Culled Gaussians get
+// radii (0, 0); their other outputs are unspecified.
+// means2d (N,2) float64, conics (N,3) (a, b, c of [[a,b],[b,c]]), depths (N), opacities (N)
+// (sigmoid of the logit, times the compensation when antialiased), radii (N,2) int32.
+int ah_splat_project(const ah_splat_params* params, int64_t n, const float* means,
+                     const float* log_scales, const float* quats, const float* opacity_logits,
+                     double* means2d, float* conics, float* depths, float* opacities,
+                     int32_t* radii, char* err, int32_t err_len);
+
+// Renders and returns an opaque context holding what the backward pass needs (free it with
+// ah_splat_release), or NULL with a message in err.
+void* ah_splat_forward(const ah_splat_params* params, int64_t n, const float* means,
+                       const float* log_scales, const float* quats,
+                       const float* opacity_logits, const float* colors, float* out_rgb,
+                       float* out_alpha, float* out_depth, char* err, int32_t err_len);
+
+// Gradients of a scalar loss given dL/d(rgb, alpha, depth) (g_alpha / g_depth may be NULL
+// for zero). Writes (overwrites) all five gradient arrays. Returns 0, or -1 with err set.
+int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const float* g_depth,
+                      float* d_means, float* d_log_scales, float* d_quats,
+                      float* d_opacity_logits, float* d_colors, char* err, int32_t err_len);
+
+// stats[0] = Gaussians that survived culling, stats[1] = tile intersections.
+void ah_splat_stats(const void* ctx, int64_t* stats);
+
+void ah_splat_release(void* ctx);
+
+int32_t ah_splat_abi_version(void);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif
