@@ -61,7 +61,8 @@ def batch_codes(model: FlameModel, codes: dict, xp=np):
         if value.ndim == 1:
             value = value[None]
         if value.ndim != 2 or value.shape[0] not in (1, batch):
-            raise ValueError(f"FLAME code '{key}': expected ({batch}, n), found {tuple(value.shape)}")
+            raise ValueError(f"FLAME code '{key}': expected ({batch}, n), "
+                             f"found {tuple(value.shape)}")
         exact = key not in ("shape", "expr")
         if (exact and value.shape[1] != width) or value.shape[1] > width:
             raise ValueError(f"FLAME code '{key}': width {value.shape[1]}, the model takes "

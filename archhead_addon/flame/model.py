@@ -91,7 +91,8 @@ def load_model(path=None) -> FlameModel:
     else:
         arrays = safe_load(path)
         if not isinstance(arrays, dict):
-            raise InputError(path, None, f"expected a dict of arrays, found {type(arrays).__name__}")
+            raise InputError(path, None,
+                             f"expected a dict of arrays, found {type(arrays).__name__}")
     return model_from_arrays(arrays, source=str(path))
 
 
@@ -134,7 +135,8 @@ def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
     if weights.shape != (n_v, N_JOINTS):
         raise InputError(source, "weights", f"expected ({n_v}, {N_JOINTS}), found {weights.shape}")
     if kintree.shape != (2, N_JOINTS):
-        raise InputError(source, "kintree_table", f"expected (2, {N_JOINTS}), found {kintree.shape}")
+        raise InputError(source, "kintree_table",
+                         f"expected (2, {N_JOINTS}), found {kintree.shape}")
     parents = _parents(kintree, source)
     n_total = shapedirs.shape[2]
     n_shape = int(arrays["n_shape"]) if "n_shape" in arrays else min(300, n_total)

@@ -175,7 +175,8 @@ def safe_load(source, *, extra=None, **kwargs):
         raise
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError,
             IndexError, KeyError, UnicodeDecodeError) as exc:
-        raise InputError(name, None, f"not a readable pickle ({type(exc).__name__}: {exc})") from exc
+        raise InputError(name, None,
+                         f"not a readable pickle ({type(exc).__name__}: {exc})") from exc
     try:
         return resolve(obj, name)
     except ValueError as exc:

@@ -1,0 +1,1 @@
+"""UV layouts and UV-space rasterization tables."""
