@@ -6,12 +6,11 @@ import types
 
 import numpy as np
 import pytest
+from synthetic_models import random_model_arrays
 
 from archhead_addon.flame.model import load_model
 from archhead_addon.io.errors import InputError, InputWarning
 from archhead_addon.io.safe_pickle import safe_load
-
-from .synthetic_models import random_model_arrays
 
 
 class _Foreign:

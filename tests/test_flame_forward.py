@@ -1,12 +1,11 @@
 import numpy as np
 import pytest
 import torch
+from synthetic_models import random_codes, random_model
 
 from archhead_addon.flame.lbs import forward, forward_full
 from archhead_addon.flame.lbs_torch import FlameLayer
 from archhead_addon.rotations import axis_angle_to_matrix
-
-from .synthetic_models import random_codes, random_model
 
 
 def _rel_err(a, b):

@@ -1,12 +1,11 @@
 import numpy as np
+from synthetic_models import random_model
 
 from archhead_addon.flame.lbs import forward
 from archhead_addon.flame.model import PART_MOUTH
 from archhead_addon.flame.teeth import add_teeth
 from archhead_addon.rotations import axis_angle_to_matrix
 from archhead_addon.uv.free_space import coverage_grid
-
-from .synthetic_models import random_model
 
 
 def _model_with_mouth():

@@ -1,0 +1,84 @@
+"""Cameras and axes: the one place where OpenCV, FLAME and Blender conventions meet.
+
+- OpenCV camera (ours): x right, y down, z forward; world-to-camera 4x4; K in pixels with
+  pixel centres at +0.5 (pixel i covers [i, i+1)).
+- Blender camera: looks down its local -Z with +Y up; intrinsics as lens (mm), sensor width
+  (mm, horizontal fit), shift in units of the image width, pixel aspect for fx != fy.
+- FLAME space is y up; Blender's world is z up. Blender world = FLAME_TO_BLENDER @ FLAME world
+  (+90 degrees about x), applied as the object transform of imported heads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FLAME_TO_BLENDER = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+CV_TO_BLENDER_CAMERA = np.diag([1.0, -1.0, -1.0, 1.0])  # flips y and z; its own inverse
+SENSOR_WIDTH_MM = 36.0
+
+
+@dataclass(frozen=True)
+class BlenderCamera:
+    """Blender camera data settings (sensor_fit is always 'HORIZONTAL')."""
+
+    lens: float
+    sensor_width: float
+    shift_x: float
+    shift_y: float
+    resolution_x: int
+    resolution_y: int
+    pixel_aspect_x: float = 1.0
+    pixel_aspect_y: float = 1.0
+
+
+def intrinsics_to_blender(K, width: int, height: int,
+                          sensor_width: float = SENSOR_WIDTH_MM) -> BlenderCamera:
+    """Blender settings that project exactly like K at this resolution (no skew)."""
+    K = np.asarray(K, dtype=np.float64)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if abs(K[0, 1]) > 1e-9 * fx:
+        raise ValueError(f"camera skew K[0,1] = {K[0, 1]} cannot be represented in Blender")
+    ycor = fx / fy  # Blender's pixel-aspect ratio y / x
+    aspect_x, aspect_y = (1.0, ycor) if ycor >= 1 else (1.0 / ycor, 1.0)
+    return BlenderCamera(
+        lens=fx * sensor_width / width, sensor_width=sensor_width,
+        shift_x=(width / 2 - cx) / width, shift_y=(cy - height / 2) * ycor / width,
+        resolution_x=int(width), resolution_y=int(height),
+        pixel_aspect_x=aspect_x, pixel_aspect_y=aspect_y)
+
+
+def blender_to_intrinsics(cam: BlenderCamera) -> np.ndarray:
+    """K (3x3, pixels) of a Blender camera with horizontal sensor fit."""
+    width, height = cam.resolution_x, cam.resolution_y
+    ycor = cam.pixel_aspect_y / cam.pixel_aspect_x
+    fx = cam.lens * width / cam.sensor_width
+    return np.array([[fx, 0, width / 2 - cam.shift_x * width],
+                     [0, fx / ycor, height / 2 + cam.shift_y * width / ycor],
+                     [0, 0, 1]])
+
+
+def w2c_to_blender_matrix_world(w2c, flame_world: bool = True) -> np.ndarray:
+    """Blender camera object matrix_world from an OpenCV world-to-camera matrix.
+
+    `flame_world`: the w2c maps FLAME-space (y up) points; the result is in Blender's world.
+    """
+    c2w = np.linalg.inv(np.asarray(w2c, dtype=np.float64))
+    world = FLAME_TO_BLENDER if flame_world else np.eye(4)
+    return world @ c2w @ CV_TO_BLENDER_CAMERA
+
+
+def blender_matrix_world_to_w2c(matrix_world, flame_world: bool = True) -> np.ndarray:
+    """The inverse of `w2c_to_blender_matrix_world` (scale in matrix_world is removed)."""
+    m = np.asarray(matrix_world, dtype=np.float64).copy()
+    m[:3, :3] /= np.linalg.norm(m[:3, :3], axis=0)
+    world = FLAME_TO_BLENDER if flame_world else np.eye(4)
+    return np.linalg.inv(np.linalg.inv(world) @ m @ CV_TO_BLENDER_CAMERA)
+
+
+def project(points, K, w2c) -> np.ndarray:
+    """Pixel coordinates (N,2) of world points (N,3) under OpenCV K, w2c."""
+    p = np.asarray(points, dtype=np.float64) @ np.asarray(w2c)[:3, :3].T + np.asarray(w2c)[:3, 3]
+    uv = p @ np.asarray(K).T
+    return uv[:, :2] / uv[:, 2:3]

@@ -1,0 +1,81 @@
+"""Benchmark: import a long tracked sequence (default 1,000 frames, 100 expressions).
+
+    python operators/bench_import.py [--frames 1000] [--expressions 100]
+    blender -b --python operators/bench_import.py -- [--frames 1000]
+
+Prints seconds for reading + building, the per-frame evaluation time of the rig and the
+scene's memory (growth of resident memory across the import, and the peak).
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from operators.script_import import enable_addon  # noqa: E402
+
+
+def synthetic_sequence(path: Path, frames: int, n_expr: int, fps: float = 30.0):
+    from archhead_addon.sequences.canonical import write_canonical
+    from archhead_addon.sequences.sequence import Sequence
+
+    t = np.arange(frames) / fps
+    rng = np.random.default_rng(0)
+    phases = rng.uniform(0, 2 * np.pi, size=(1, n_expr))
+    expr = np.sin(t[:, None] * 1.3 + phases) * np.exp(-np.arange(n_expr) / 20)
+    wave = np.sin(t * 0.8)[:, None]
+    K = np.array([[1000.0, 0, 256], [0, 1000.0, 256], [0, 0, 1]])
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, 2, 3] = 0.7
+    seq = Sequence(shape=np.zeros((frames, 300)), expr=expr, jaw=0.2 * (1 + wave) * [1, 0, 0],
+                   neck=0.3 * wave * [0, 1, 0], eyes=0.2 * wave * [0, 1, 0, 0, 1, 0],
+                   rotation=0.1 * wave * [1, 0, 0], translation=np.zeros((frames, 3)), fps=fps,
+                   frame_ids=np.arange(frames), source=str(path), format="canonical",
+                   K=np.tile(K, (frames, 1, 1)), w2c=w2c, image_size=(512, 512))
+    write_canonical(seq, path)
+
+
+def main(argv):
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--frames", type=int, default=1000)
+    parser.add_argument("--expressions", type=int, default=100)
+    args = parser.parse_args(argv)
+    enable_addon()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    path = Path(tempfile.mkdtemp()) / "bench.npz"
+    synthetic_sequence(path, args.frames, 100)
+    rss_before = _rss_mb()
+    start = time.perf_counter()
+    bpy.ops.archhead.import_sequence(filepath=str(path), n_expr=args.expressions)
+    seconds = time.perf_counter() - start
+    scene_mb = _rss_mb() - rss_before
+    scene = bpy.context.scene
+    samples = np.linspace(scene.frame_start, scene.frame_end, 50).astype(int)
+    start = time.perf_counter()
+    for frame in samples:
+        scene.frame_set(int(frame))
+    per_frame = (time.perf_counter() - start) / len(samples) * 1000
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print("| frames | expressions | import s | frame change ms | scene memory MB | peak RSS MB |")
+    print("|---|---|---|---|---|---|")
+    print(f"| {args.frames} | {args.expressions} | {seconds:.2f} | {per_frame:.1f} | "
+          f"{scene_mb:.0f} | {peak_mb:.0f} |")
+
+
+def _rss_mb() -> float:
+    """Resident memory now (the scene's cost is the growth across the import)."""
+    with open("/proc/self/statm") as f:
+        pages = int(f.read().split()[1])
+    return pages * resource.getpagesize() / 2**20
+
+
+if __name__ == "__main__":
+    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])

@@ -1,0 +1,71 @@
+"""Import a tracked sequence and save a .blend, without the UI.
+
+    blender -b --python operators/script_import.py -- SEQUENCE OUT.blend [--stride N] ...
+    python operators/script_import.py SEQUENCE OUT.blend ...      (the `bpy` module)
+
+The add-on is enabled first: the installed extension when there is one, else this checkout
+through a temporary extension repository (Blender's own add-on loading either way).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import bpy
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+TEMP_REPO = "archhead_checkout"
+
+
+def enable_addon() -> str:
+    """Enable ArchHead and return its module name."""
+    for addon in bpy.context.preferences.addons:
+        if addon.module.endswith(".archhead"):
+            return addon.module
+    installed = [m for m in _extension_modules() if m.endswith(".archhead")]
+    if installed:
+        module = installed[0]
+    else:
+        folder = Path(tempfile.mkdtemp(prefix="archhead_repo_"))
+        (folder / "archhead").symlink_to(REPO_ROOT, target_is_directory=True)
+        bpy.context.preferences.extensions.repos.new(
+            name=TEMP_REPO, module=TEMP_REPO, custom_directory=str(folder), source="USER")
+        module = f"bl_ext.{TEMP_REPO}.archhead"
+    bpy.ops.preferences.addon_enable(module=module)
+    return module
+
+
+def _extension_modules():
+    import addon_utils
+
+    return [mod.__name__ for mod in addon_utils.modules()]
+
+
+def main(argv: list[str]) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sequence")
+    parser.add_argument("out", help=".blend file to write")
+    parser.add_argument("--first", type=int, default=0)
+    parser.add_argument("--last", type=int, default=-1)
+    parser.add_argument("--stride", type=int, default=1)
+    parser.add_argument("--fps", type=float, default=0.0)
+    parser.add_argument("--expressions", type=int, default=100)
+    parser.add_argument("--no-camera", action="store_true")
+    parser.add_argument("--no-correctives", action="store_true")
+    args = parser.parse_args(argv)
+    enable_addon()
+    result = bpy.ops.archhead.import_sequence(
+        filepath=str(Path(args.sequence).resolve()), frame_start=args.first,
+        frame_end=args.last, stride=args.stride, target_fps=args.fps, n_expr=args.expressions,
+        use_camera=not args.no_camera, use_pose_correctives=not args.no_correctives)
+    if result != {"FINISHED"}:
+        raise SystemExit(f"import failed: {result}")
+    bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.out).resolve()))
+    print(f"saved {args.out}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
