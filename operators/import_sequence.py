@@ -53,7 +53,7 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", InputWarning)
-                obj = import_sequence(context, path, self.options(),
+                obj = import_sequence(context, path, self.import_options(),
                                       model_path=prefs.flame_model_path if prefs else "")
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
@@ -64,7 +64,7 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         self.report({"INFO"}, f"Imported {obj.name}")
         return {"FINISHED"}
 
-    def options(self) -> dict:
+    def import_options(self) -> dict:
         return {"frame_start": self.frame_start, "frame_end": self.frame_end,
                 "stride": self.stride, "fps": self.target_fps or None, "n_expr": self.n_expr,
                 "camera": self.use_camera, "pose_correctives": self.use_pose_correctives}

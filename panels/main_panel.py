@@ -2,7 +2,6 @@
 
 import bpy
 
-from ..operators.import_sequence import ARCHHEAD_OT_import_sequence
 from .preferences import get_preferences
 
 
@@ -29,7 +28,7 @@ class ARCHHEAD_PT_main(bpy.types.Panel):
         prefs = get_preferences(context)
         model = (prefs.flame_model_path if prefs else "") or "built-in"
         layout.label(text=f"Model: {bpy.path.basename(model) or model}", icon="MESH_MONKEY")
-        layout.operator(ARCHHEAD_OT_import_sequence.bl_idname, icon="IMPORT")
+        layout.operator("archhead.import_sequence", icon="IMPORT")
         head = active_head(context)
         if head is None:
             layout.label(text="No imported head selected")
