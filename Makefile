@@ -15,4 +15,4 @@ test:
 	$(BIN)/python -m pytest
 
 demo:
-	$(BIN)/python -m archhead_addon demo
+	$(BIN)/python operators/script_import.py demo out/demo.blend

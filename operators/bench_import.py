@@ -20,27 +20,9 @@ import bpy
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from archhead_addon.sequences import write_canonical  # noqa: E402
+from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
 from operators.script_import import enable_addon  # noqa: E402
-
-
-def synthetic_sequence(path: Path, frames: int, n_expr: int, fps: float = 30.0):
-    from archhead_addon.sequences.canonical import write_canonical
-    from archhead_addon.sequences.sequence import Sequence
-
-    t = np.arange(frames) / fps
-    rng = np.random.default_rng(0)
-    phases = rng.uniform(0, 2 * np.pi, size=(1, n_expr))
-    expr = np.sin(t[:, None] * 1.3 + phases) * np.exp(-np.arange(n_expr) / 20)
-    wave = np.sin(t * 0.8)[:, None]
-    K = np.array([[1000.0, 0, 256], [0, 1000.0, 256], [0, 0, 1]])
-    w2c = np.tile(np.eye(4), (frames, 1, 1))
-    w2c[:, 2, 3] = 0.7
-    seq = Sequence(shape=np.zeros((frames, 300)), expr=expr, jaw=0.2 * (1 + wave) * [1, 0, 0],
-                   neck=0.3 * wave * [0, 1, 0], eyes=0.2 * wave * [0, 1, 0, 0, 1, 0],
-                   rotation=0.1 * wave * [1, 0, 0], translation=np.zeros((frames, 3)), fps=fps,
-                   frame_ids=np.arange(frames), source=str(path), format="canonical",
-                   K=np.tile(K, (frames, 1, 1)), w2c=w2c, image_size=(512, 512))
-    write_canonical(seq, path)
 
 
 def main(argv):
@@ -51,7 +33,7 @@ def main(argv):
     enable_addon()
     bpy.ops.wm.read_homefile(use_empty=True)
     path = Path(tempfile.mkdtemp()) / "bench.npz"
-    synthetic_sequence(path, args.frames, 100)
+    write_canonical(demo_sequence(args.frames), path)
     rss_before = _rss_mb()
     start = time.perf_counter()
     bpy.ops.archhead.import_sequence(filepath=str(path), n_expr=args.expressions)

@@ -3,6 +3,8 @@
     blender -b --python operators/script_import.py -- SEQUENCE OUT.blend [--stride N] ...
     python operators/script_import.py SEQUENCE OUT.blend ...      (the `bpy` module)
 
+SEQUENCE `demo` imports the built-in talking-head trajectory on the built-in model.
+
 The add-on is enabled first: the installed extension when there is one, else this checkout
 through a temporary extension repository (Blender's own add-on loading either way).
 """
@@ -44,6 +46,16 @@ def _extension_modules():
     return [mod.__name__ for mod in addon_utils.modules()]
 
 
+def _write_demo_sequence() -> str:
+    sys.path.insert(0, str(REPO_ROOT))
+    from archhead_addon.sequences import write_canonical
+    from archhead_addon.sequences.demo import demo_sequence
+
+    path = Path(tempfile.mkdtemp(prefix="archhead_demo_")) / "demo.npz"
+    write_canonical(demo_sequence(), path)
+    return str(path)
+
+
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sequence")
@@ -57,6 +69,8 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--no-correctives", action="store_true")
     args = parser.parse_args(argv)
     enable_addon()
+    if args.sequence == "demo":
+        args.sequence = _write_demo_sequence()
     result = bpy.ops.archhead.import_sequence(
         filepath=str(Path(args.sequence).resolve()), frame_start=args.first,
         frame_end=args.last, stride=args.stride, target_fps=args.fps, n_expr=args.expressions,

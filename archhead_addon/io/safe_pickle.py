@@ -77,6 +77,13 @@ class _CooStub(SparseStub):
     fmt = "coo"
 
 
+def _latin1_encode(text, encoding="utf-8"):
+    """`_codecs.encode` as protocol-2 pickles from Python 3 carry bytes (as latin1 text)."""
+    if encoding not in ("latin1", "latin-1") or not isinstance(text, str):
+        raise ValueError(f"_codecs.encode with {encoding!r} is not allowed")
+    return text.encode("latin1")
+
+
 def _reconstructor(cls, base, state):
     """copyreg._reconstructor, restricted to classes this module already allowed."""
     if isinstance(cls, type) and issubclass(cls, _StateStub):
@@ -112,8 +119,6 @@ def _frombuffer(buf, dtype, shape, order):
 _SPARSE = {"csc_matrix": _CscStub, "csc_array": _CscStub, "csr_matrix": _CsrStub,
            "csr_array": _CsrStub, "coo_matrix": _CooStub, "coo_array": _CooStub}
 
-_CODECS = {"encode"}  # protocol-2 pickles written by Python 3 carry bytes as _codecs.encode
-
 _BUILTINS = {"object": object, "set": set, "frozenset": frozenset, "bytearray": bytearray,
              "complex": complex, "slice": slice}
 
@@ -134,10 +139,8 @@ class RestrictedUnpickler(pickle.Unpickler):
             return _reconstructor
         if module in ("__builtin__", "builtins") and name in _BUILTINS:
             return _BUILTINS[name]
-        if module == "_codecs" and name in _CODECS:
-            import codecs
-
-            return codecs.encode
+        if (module, name) == ("_codecs", "encode"):
+            return _latin1_encode
         if module == "chumpy" or module.startswith("chumpy."):
             return ChumpyStub
         if module.startswith("scipy.sparse") and name in _SPARSE:

@@ -1,0 +1,67 @@
+"""The package's command line: `python -m archhead_addon COMMAND ...`.
+
+Each command is a function in COMMANDS that adds its subparser and sets `run`, a function of
+the parsed arguments returning the exit status. Commands import heavy modules (torch) inside
+`run`, so `--help` and the light commands stay fast and torch-free. Bad input (InputError)
+exits with status 2 and one `error:` line; input warnings print as `warning:` lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+
+from .io.errors import InputError, InputWarning
+from .sequences import FORMAT_NAMES, read_sequence, write_canonical
+
+
+def _add_convert(commands) -> None:
+    p = commands.add_parser("convert", help="convert a tracked sequence to ArchHead's .npz",
+                            description="Read a tracked FLAME sequence and write ArchHead's "
+                            "canonical .npz (docs/formats.md).")
+    p.add_argument("input", help="sequence file or folder")
+    p.add_argument("output", help="canonical .npz to write (replaced atomically)")
+    p.add_argument("--format", choices=FORMAT_NAMES, help="input format (default: detected)")
+    p.add_argument("--fps", type=float, help="frame rate, for formats that store none (or to "
+                   "override the stored one)")
+    p.add_argument("--camera", type=int, help="camera_index of a multi-view VHAP / "
+                   "GaussianAvatars folder (default: the lowest)")
+    p.set_defaults(run=_convert)
+
+
+def _convert(args) -> int:
+    seq = read_sequence(args.input, args.format, fps=args.fps, camera=args.camera)
+    write_canonical(seq, args.output)
+    camera = f"{seq.image_size[1]}x{seq.image_size[0]}" if seq.has_camera else "none"
+    print(f"{args.output}: {len(seq)} frames, {seq.fps:g} fps, from {seq.format}, shape "
+          f"{seq.shape.shape[1]}, expr {seq.expr.shape[1]}, camera {camera}")
+    return 0
+
+
+COMMANDS = (_add_convert,)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"warning: {message}", file=sys.stderr)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m archhead_addon",
+                                     description="ArchHead command line tools.")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in COMMANDS:
+        add(commands)
+    args = parser.parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputWarning)
+        warnings.showwarning = _show_warning
+        try:
+            return args.run(args)
+        except InputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
