@@ -42,12 +42,15 @@ class RigAnimation:
     expr: np.ndarray  # (T,E) shape-key values
     bone_quats: np.ndarray  # (T,5,4) w,x,y,z, sign-continuous over time
     bone_locs: np.ndarray  # (T,5,3) pose-bone locations
+    pose_feature: np.ndarray  # (T,36) the pose correctives' values, vec(R_i - I), FLAME order
     identity_shape: np.ndarray  # (S,)
 
 
 def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnimation:
     """The rig's rest state and per-frame channels for a sequence fitted to the model."""
     n_expr = model.n_expr if n_expr is None else min(n_expr, model.n_expr)
+    used = np.flatnonzero(np.any(np.asarray(seq.expr)[:, :n_expr] != 0, axis=0))
+    n_expr = int(used[-1]) + 1 if len(used) else 0  # components never used get no shape key
     shape = np.asarray(seq.shape, dtype=np.float64)
     identity = shape[0] if shape.ndim == 2 else shape
     n_s = identity.shape[0]
@@ -69,6 +72,7 @@ def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnima
         rest_vertices=rest, rest_joints=rest_joints, expr_deltas=expr_dirs,
         pose_deltas=np.moveaxis(model.posedirs, 2, 0), expr=expr,
         bone_quats=continuous_quaternions(axis_angle_to_quaternion(pose)), bone_locs=locs,
+        pose_feature=(rot[:, 1:] - np.eye(3)).reshape(len(rot), -1),
         identity_shape=identity)
 
 

@@ -31,25 +31,28 @@ def main(argv):
     parser.add_argument("--expressions", type=int, default=100)
     args = parser.parse_args(argv)
     enable_addon()
-    bpy.ops.wm.read_homefile(use_empty=True)
     path = Path(tempfile.mkdtemp()) / "bench.npz"
     write_canonical(demo_sequence(args.frames), path)
-    rss_before = _rss_mb()
-    start = time.perf_counter()
-    bpy.ops.archhead.import_sequence(filepath=str(path), n_expr=args.expressions)
-    seconds = time.perf_counter() - start
-    scene_mb = _rss_mb() - rss_before
-    scene = bpy.context.scene
-    samples = np.linspace(scene.frame_start, scene.frame_end, 50).astype(int)
-    start = time.perf_counter()
-    for frame in samples:
-        scene.frame_set(int(frame))
-    per_frame = (time.perf_counter() - start) / len(samples) * 1000
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print("| frames | expressions | import s | frame change ms | scene memory MB | peak RSS MB |")
-    print("|---|---|---|---|---|---|")
-    print(f"| {args.frames} | {args.expressions} | {seconds:.2f} | {per_frame:.1f} | "
-          f"{scene_mb:.0f} | {peak_mb:.0f} |")
+    print("| frames | expressions | correctives | import s | frame change ms |"
+          " scene memory MB | peak RSS MB |")
+    print("|---|---|---|---|---|---|---|")
+    for mode in ("DRIVERS", "KEYFRAMES", "NONE"):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        rss_before = _rss_mb()
+        start = time.perf_counter()
+        bpy.ops.archhead.import_sequence(filepath=str(path), n_expr=args.expressions,
+                                         pose_correctives=mode)
+        seconds = time.perf_counter() - start
+        scene_mb = _rss_mb() - rss_before
+        scene = bpy.context.scene
+        samples = np.linspace(scene.frame_start, scene.frame_end, 50).astype(int)
+        start = time.perf_counter()
+        for frame in samples:
+            scene.frame_set(int(frame))
+        per_frame = (time.perf_counter() - start) / len(samples) * 1000
+        peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"| {args.frames} | {args.expressions} | {mode.lower()} | {seconds:.2f} | "
+              f"{per_frame:.1f} | {scene_mb:.0f} | {peak_mb:.0f} |")
 
 
 def _rss_mb() -> float:

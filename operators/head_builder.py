@@ -32,7 +32,7 @@ BONE_LENGTH = 0.02  # metres; only the display length, rest frames stay axis-ali
 @dataclass
 class ImportOptions:
     n_expr: int | None = None  # expression shape keys kept (None = all of the model's)
-    pose_correctives: bool = True
+    pose_correctives: str = "DRIVERS"  # or "KEYFRAMES" (from the tracked rotations), "NONE"
     camera: bool = True
     fps: float | None = None  # scene fps (None = the sequence's)
     name: str = "ArchHead"
@@ -89,11 +89,11 @@ def _build(context, model, seq, options, info, created):
     head.parent = arm_obj
     _skin(head, arm_obj, model)
     _shape_keys(head, rig, options)
-    if options.pose_correctives:
+    if options.pose_correctives == "DRIVERS":
         _pose_drivers(head, arm_obj)
 
     _animate_bones(arm_obj, rig, frames, created)
-    _animate_expressions(head, rig, frames, created)
+    _animate_shape_keys(head, rig, frames, options.pose_correctives == "KEYFRAMES", created)
     if options.camera and seq.K is not None and seq.w2c is not None:
         _build_camera(scene, seq, frames, options.name, created)
 
@@ -199,7 +199,7 @@ def _shape_keys(head, rig, options):
     basis = head.shape_key_add(name="Basis", from_mix=False)
     rest = rig.rest_vertices
     keys = [(f"expr_{i:03d}", d) for i, d in enumerate(rig.expr_deltas)]
-    if options.pose_correctives:
+    if options.pose_correctives != "NONE":
         keys += [(name, d) for (name, _, _), d in zip(pose_corrective_names(), rig.pose_deltas,
                                                        strict=True)]
     for name, delta in keys:
@@ -237,12 +237,14 @@ def _animate_bones(arm_obj, rig, frames, created):
         writer.write_vector(f"{base}.location", frames, rig.bone_locs[:, j], name)
 
 
-def _animate_expressions(head, rig, frames, created):
-    key = head.data.shape_keys
-    writer = ActionWriter(key, f"{head.name}_expressions")
+def _animate_shape_keys(head, rig, frames, correctives: bool, created):
+    writer = ActionWriter(head.data.shape_keys, f"{head.name}_shape_keys")
     created.add(writer.action)
     for i in range(rig.expr.shape[1]):
         writer.write(f'key_blocks["expr_{i:03d}"].value', frames, rig.expr[:, i])
+    if correctives:
+        for k, (name, _, _) in enumerate(pose_corrective_names()):
+            writer.write(f'key_blocks["{name}"].value', frames, rig.pose_feature[:, k])
 
 
 def _build_camera(scene, seq, frames, name, created):

@@ -41,9 +41,14 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
                                               "(fewer = lighter scene)")
     use_camera: bpy.props.BoolProperty(name="Camera", default=True,
                                        description="Create the tracked camera when there is one")
-    use_pose_correctives: bpy.props.BoolProperty(name="Pose correctives", default=True,
-                                                 description="36 corrective shape keys driven "
-                                                             "by the bones")
+    pose_correctives: bpy.props.EnumProperty(
+        name="Pose correctives",
+        items=(("DRIVERS", "Driven by bones", "36 corrective shape keys driven by simple "
+                "expressions of the bones' rotations: they follow any later bone edit"),
+               ("KEYFRAMES", "Keyframed", "36 corrective shape keys keyframed from the tracked "
+                "rotations"),
+               ("NONE", "None", "No pose correctives (lighter, not exact)")),
+        default="DRIVERS")
 
     def execute(self, context):
         path = Path(self.filepath)
@@ -67,7 +72,7 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
     def import_options(self) -> dict:
         return {"frame_start": self.frame_start, "frame_end": self.frame_end,
                 "stride": self.stride, "fps": self.target_fps or None, "n_expr": self.n_expr,
-                "camera": self.use_camera, "pose_correctives": self.use_pose_correctives}
+                "camera": self.use_camera, "pose_correctives": self.pose_correctives}
 
 
 def import_sequence(context, path, options: dict | None = None, model_path: str = ""):
