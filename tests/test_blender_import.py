@@ -16,6 +16,7 @@ from archhead_addon.flame import load_model
 from archhead_addon.flame.lbs import forward
 from archhead_addon.flame.teeth import add_teeth
 from archhead_addon.sequences.canonical import write_canonical
+from archhead_addon.sequences.demo import demo_sequence
 from archhead_addon.sequences.sequence import Sequence
 
 WIDTH, HEIGHT = 640, 480
@@ -120,12 +121,30 @@ def test_failed_import_leaves_nothing(tmp_path, imported):
 
 
 def test_script_imports_and_saves_blend(tmp_path):
-    model = add_teeth(load_model())
     seq_path = tmp_path / "clip.npz"
-    write_canonical(_extreme_sequence(model, n_frames=4, seed=3), seq_path)
+    write_canonical(demo_sequence(frames=8), seq_path)
     out = tmp_path / "clip.blend"
     proc = subprocess.run([sys.executable, str(REPO_ROOT / "operators/script_import.py"),
                            str(seq_path), str(out), "--stride", "2", "--expressions", "20"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert out.stat().st_size > 100_000
+    bpy.ops.wm.open_mainfile(filepath=str(out))
+    head = bpy.data.objects["clip"]
+    assert (bpy.context.scene.frame_start, bpy.context.scene.frame_end) == (1, 7)  # 8 / stride 2
+    assert head.data.shape_keys.key_blocks["expr_019"] and "expr_020" not in (
+        head.data.shape_keys.key_blocks)
+
+
+def test_keyframed_correctives_equally_exact(imported, tmp_path):
+    _, model, seq, _ = imported
+    path = tmp_path / "keyed.npz"
+    write_canonical(seq, path)
+    assert bpy.ops.archhead.import_sequence(filepath=str(path), pose_correctives="KEYFRAMES",
+                                            use_camera=False) == {"FINISHED"}
+    head = bpy.data.objects["keyed"]
+    assert not head.data.shape_keys.animation_data.drivers
+    for i in (3, 4, 6):  # jaw, neck, near-pi global rotation
+        codes = {k: getattr(seq, k)[i] for k in ("shape", "expr", "jaw", "neck", "eyes",
+                                                 "rotation", "translation")}
+        assert np.abs(_evaluated_vertices(head, i + 1) - forward(model, **codes)[0]).max() <= 1e-5
