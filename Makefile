@@ -9,6 +9,7 @@ setup:
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip
 	$(BIN)/pip install -e '.[dev]'
+	$(BIN)/python -m archhead_addon.splat.build
 
 test:
 	$(BIN)/ruff check .

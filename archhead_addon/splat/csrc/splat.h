@@ -2,10 +2,10 @@
 // torch.autograd.Function. All arrays are C-contiguous float32 unless noted.
 //
 // Conventions
-//   camera     OpenCV: x right, y down, z forward; viewmat is world-to-camera, 4x4 row-major
-//              (its 3x3 block may be any invertible linear map, e.g. include an object
-//              transform); K is 3x3 row-major in pixels; pixel (i, j) has its centre at
-//              (i + 0.5, j + 0.5) in the coordinates K maps to.
+//   camera     OpenCV: x right, y down, z forward; viewmat is world-to-camera, 4x4 row-major,
+//              affine (its 3x3 block may be any invertible linear map, e.g. include an object
+//              transform); K is 3x3 row-major in pixels, no skew; pixel (i, j) has its centre
+//              at (i + 0.5, j + 0.5) in the coordinates K maps to.
 //   gaussians  means (N,3); log_scales (N,3), clamped to [AH_LOG_SCALE_MIN, AH_LOG_SCALE_MAX]
 //              before exp; quats (N,4) w,x,y,z, normalised inside (a zero quaternion is the
 //              identity); opacity_logits (N); colors (N,3) (already evaluated from SH).
@@ -27,8 +27,8 @@ extern "C" {
 
 typedef struct {
     int32_t width, height;
-    float viewmat[16];
-    float K[9];
+    double viewmat[16];  // row-major
+    double K[9];         // row-major
     float near_plane, far_plane;
     float eps2d;          // isotropic dilation of the 2D covariance, px^2 (3DGS: 0.3)
     int32_t antialiased;  // 1: scale opacity by sqrt(det(cov) / det(cov + eps2d I))
@@ -37,7 +37,7 @@ typedef struct {
 } ah_splat_params;
 
 // Per-Gaussian projection (exposed for tests and diagnostics). Culled Gaussians get
-// radii (0, 0); their other outputs are unspecified.
+// radii (0, 0) and zeros elsewhere.
 // means2d (N,2) float64, conics (N,3) (a, b, c of [[a,b],[b,c]]), depths (N), opacities (N)
 // (sigmoid of the logit, times the compensation when antialiased), radii (N,2) int32.
 int ah_splat_project(const ah_splat_params* params, int64_t n, const float* means,

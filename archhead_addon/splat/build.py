@@ -1,0 +1,120 @@
+"""Build the C++ splat kernel into a shared library inside the package.
+
+Run `python -m archhead_addon.splat.build` (the `make setup` target does). The build is
+idempotent: the library is rebuilt only when the sources, the flags or the compiler change,
+which a hash stored beside the library records. Standard library only, so Blender's Python
+can run it too.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+SOURCE_DIR = Path(__file__).resolve().parent / "csrc"
+BUILD_DIR = Path(__file__).resolve().parent / "_build"
+LIB_NAME = "libarchhead_splat.dylib" if sys.platform == "darwin" else "libarchhead_splat.so"
+LIB_PATH = BUILD_DIR / LIB_NAME
+STAMP_PATH = BUILD_DIR / (LIB_NAME + ".sha256")
+
+# No -march=native (the library must run on any x86-64; the hot loops carry their own AVX2
+# clone) and no -ffast-math (it breaks the NaN guards and the bitwise determinism).
+# -ffp-contract=off keeps forward and backward alpha tests bit-identical.
+FLAGS = ["-std=c++17", "-O3", "-fopenmp", "-shared", "-fPIC", "-ffp-contract=off", "-Wall"]
+COMPILERS = ("g++", "c++", "clang++")
+
+INSTALL_HINT = (
+    "Install a C++17 compiler with OpenMP, then run `make setup` (or "
+    "`python -m archhead_addon.splat.build`): Debian/Ubuntu `sudo apt install g++`, "
+    "Fedora `sudo dnf install gcc-c++`, macOS `brew install gcc` (and set CXX=g++-14 or "
+    "the installed version)."
+)
+
+
+class BuildError(RuntimeError):
+    """The kernel could not be compiled; the message says why and what to do."""
+
+
+def sources() -> list[Path]:
+    return sorted(p for p in SOURCE_DIR.iterdir() if p.suffix in {".h", ".hpp", ".cpp"})
+
+
+def source_hash(compiler: str = "") -> str:
+    h = hashlib.sha256()
+    for path in sources():
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    h.update(" ".join(FLAGS).encode())
+    h.update(compiler.encode())
+    return h.hexdigest()
+
+
+def find_compiler(env: dict[str, str] | None = None) -> str:
+    """The compiler to use: $CXX if set, else the first of g++, c++, clang++ on PATH."""
+    env = os.environ if env is None else env
+    path = env.get("PATH", "")
+    candidates = [env["CXX"]] if env.get("CXX") else list(COMPILERS)
+    for name in candidates:
+        found = shutil.which(name, path=path)
+        if found:
+            return found
+    raise BuildError(f"No C++ compiler found (looked for {', '.join(candidates)}). {INSTALL_HINT}")
+
+
+def is_current(compiler: str | None = None) -> bool:
+    """Whether the built library matches the sources (and, if given, the compiler)."""
+    if not (LIB_PATH.exists() and STAMP_PATH.exists()):
+        return False
+    stamp = STAMP_PATH.read_text().split()
+    if compiler is None:
+        return len(stamp) == 2 and stamp[1] == source_hash(stamp[0])
+    return stamp == [compiler, source_hash(compiler)]
+
+
+def build(force: bool = False, verbose: bool = False) -> Path:
+    """Compile the kernel if needed and return the library path."""
+    compiler = find_compiler()
+    if not force and is_current(compiler):
+        return LIB_PATH
+    BUILD_DIR.mkdir(parents=True, exist_ok=True)
+    # Compile to a temporary name and rename, so a process that has the old library
+    # loaded keeps a valid file.
+    fd, tmp = tempfile.mkstemp(dir=BUILD_DIR, suffix=LIB_PATH.suffix)
+    os.close(fd)
+    cmd = [compiler, *FLAGS, str(SOURCE_DIR / "splat.cpp"), "-o", tmp]
+    if verbose:
+        print(" ".join(cmd))
+    try:
+        result = subprocess.run(cmd, capture_output=True, text=True)
+        if result.returncode != 0:
+            raise BuildError(
+                f"Compiling the splat kernel failed ({' '.join(cmd)}):\n{result.stderr}\n"
+                "If the error mentions omp.h or -fopenmp, the compiler lacks OpenMP. "
+                + INSTALL_HINT
+            )
+        os.replace(tmp, LIB_PATH)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    STAMP_PATH.write_text(f"{compiler} {source_hash(compiler)}\n")
+    return LIB_PATH
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    try:
+        path = build(force="--force" in args, verbose="-v" in args)
+    except BuildError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"splat kernel: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,111 @@
+// One global depth sort, then binning into 16x16 tiles. Every step is deterministic and
+// independent of the thread count: a stable radix sort on the float64 depth (ties keep
+// input order), and counting passes whose output does not depend on how they are split.
+#pragma once
+
+#include <cstdint>
+#include <cstring>
+#include <utility>
+#include <vector>
+
+namespace ah {
+
+constexpr int kTile = 16;
+
+// Stable LSD radix sort of ids by positive float64 keys (their bit patterns order like the
+// values); byte passes in which every key agrees are skipped.
+inline std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& ids,
+                                          const std::vector<double>& depth) {
+    const size_t n = ids.size();
+    std::vector<uint64_t> keys(n), keys_tmp(n);
+    std::vector<int32_t> out(ids), tmp(n);
+    for (size_t i = 0; i < n; ++i) std::memcpy(&keys[i], &depth[ids[i]], sizeof(uint64_t));
+    for (int shift = 0; shift < 64; shift += 8) {
+        size_t count[257] = {0};
+        for (size_t i = 0; i < n; ++i) ++count[((keys[i] >> shift) & 0xff) + 1];
+        bool trivial = false;
+        for (int b = 1; b <= 256; ++b) trivial |= count[b] == n;
+        if (trivial) continue;
+        for (int b = 0; b < 256; ++b) count[b + 1] += count[b];
+        for (size_t i = 0; i < n; ++i) {
+            const size_t dst = count[(keys[i] >> shift) & 0xff]++;
+            keys_tmp[dst] = keys[i];
+            tmp[dst] = out[i];
+        }
+        keys.swap(keys_tmp);
+        out.swap(tmp);
+    }
+    return out;
+}
+
+// Tile lists. tile_start has tiles + 1 entries; tile_ids[tile_start[t] .. tile_start[t+1])
+// are the Gaussians touching tile t, front to back. For the backward reduction, the
+// intersections of the k-th sorted Gaussian are entry_of[isect_start[k] .. isect_start[k+1])
+// (positions in tile_ids, in increasing tile order).
+struct Bins {
+    int tiles_x = 0, tiles_y = 0;
+    std::vector<int32_t> sorted;  // visible Gaussians, front to back
+    std::vector<int64_t> tile_start, isect_start;
+    std::vector<int32_t> tile_ids;
+    std::vector<int64_t> entry_of;
+};
+
+// bbox: per Gaussian inclusive pixel ranges x0, x1, y0, y1 (4 ints). The sorted list is cut
+// into `chunks` contiguous pieces counted and filled in parallel; each piece writes after
+// the pieces before it in every tile, so the lists equal the serial ones for any count.
+inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<int32_t>& bbox,
+                      int width, int height, int chunks) {
+    B.tiles_x = (width + kTile - 1) / kTile;
+    B.tiles_y = (height + kTile - 1) / kTile;
+    const int64_t n_tiles = int64_t(B.tiles_x) * B.tiles_y;
+    const int64_t n = int64_t(sorted.size());
+    B.sorted = std::move(sorted);
+    auto tiles_of = [&](int64_t k, int& tx0, int& tx1, int& ty0, int& ty1) {
+        const int32_t* b = &bbox[4 * size_t(B.sorted[k])];
+        tx0 = b[0] / kTile, tx1 = b[1] / kTile, ty0 = b[2] / kTile, ty1 = b[3] / kTile;
+    };
+    // cursor[c * n_tiles + t]: first holds chunk c's count in tile t, then its write position
+    std::vector<int64_t> cursor(size_t(chunks) * n_tiles, 0);
+    B.isect_start.assign(n + 1, 0);
+#pragma omp parallel for num_threads(chunks) schedule(static, 1)
+    for (int c = 0; c < chunks; ++c) {
+        int64_t* count = &cursor[size_t(c) * n_tiles];
+        for (int64_t k = n * c / chunks; k < n * (c + 1) / chunks; ++k) {
+            int tx0, tx1, ty0, ty1;
+            tiles_of(k, tx0, tx1, ty0, ty1);
+            for (int ty = ty0; ty <= ty1; ++ty)
+                for (int tx = tx0; tx <= tx1; ++tx) ++count[int64_t(ty) * B.tiles_x + tx];
+            B.isect_start[k + 1] = int64_t(tx1 - tx0 + 1) * (ty1 - ty0 + 1);
+        }
+    }
+    for (int64_t k = 0; k < n; ++k) B.isect_start[k + 1] += B.isect_start[k];
+    B.tile_start.assign(n_tiles + 1, 0);
+    for (int64_t t = 0; t < n_tiles; ++t) {
+        int64_t pos = B.tile_start[t];
+        for (int c = 0; c < chunks; ++c) {
+            const int64_t count = cursor[size_t(c) * n_tiles + t];
+            cursor[size_t(c) * n_tiles + t] = pos;
+            pos += count;
+        }
+        B.tile_start[t + 1] = pos;
+    }
+    B.tile_ids.resize(B.tile_start[n_tiles]);
+    B.entry_of.resize(B.tile_start[n_tiles]);
+#pragma omp parallel for num_threads(chunks) schedule(static, 1)
+    for (int c = 0; c < chunks; ++c) {
+        int64_t* pos = &cursor[size_t(c) * n_tiles];
+        for (int64_t k = n * c / chunks; k < n * (c + 1) / chunks; ++k) {
+            int tx0, tx1, ty0, ty1;
+            tiles_of(k, tx0, tx1, ty0, ty1);
+            int64_t e = B.isect_start[k];
+            for (int ty = ty0; ty <= ty1; ++ty)
+                for (int tx = tx0; tx <= tx1; ++tx) {
+                    const int64_t p = pos[int64_t(ty) * B.tiles_x + tx]++;
+                    B.tile_ids[p] = B.sorted[k];
+                    B.entry_of[e++] = p;
+                }
+        }
+    }
+}
+
+}  // namespace ah

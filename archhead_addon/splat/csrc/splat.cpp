@@ -1,0 +1,289 @@
+// C ABI of the ArchHead splat kernel (see splat.h).
+//
+// Determinism: every parallel loop writes disjoint outputs (a Gaussian, a tile), and the
+// backward pass stores one gradient record per tile intersection instead of accumulating
+// into shared or per-thread buffers; each Gaussian then sums its own records in tile
+// order. Results are therefore bitwise identical for any thread count.
+#include "splat.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cfloat>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <memory>
+#include <new>
+#include <vector>
+
+#include "binning.hpp"
+#include "projection.hpp"
+#include "raster.hpp"
+
+namespace {
+
+using namespace ah;
+
+// Gradients are computed in double; huge but finite ones (e.g. through the normalisation of
+// a 1e-30 quaternion) saturate instead of overflowing float32 to Inf.
+float saturate(double x) { return float(std::clamp(x, -double(FLT_MAX), double(FLT_MAX))); }
+
+void set_error(char* err, int32_t err_len, const char* msg) {
+    if (err && err_len > 0) std::snprintf(err, size_t(err_len), "%s", msg);
+}
+
+bool check_params(const ah_splat_params* p, char* err, int32_t err_len) {
+    char msg[256];
+    auto fail = [&](const char* what) {
+        std::snprintf(msg, sizeof msg, "invalid splat parameters: %s", what);
+        set_error(err, err_len, msg);
+        return false;
+    };
+    if (!p) return fail("params is NULL");
+    if (p->width <= 0 || p->height <= 0 || p->width > 32768 || p->height > 32768)
+        return fail("width and height must be in 1..32768");
+    for (double v : p->viewmat)
+        if (!std::isfinite(v)) return fail("viewmat has a non-finite entry");
+    for (double v : p->K)
+        if (!std::isfinite(v)) return fail("K has a non-finite entry");
+    // The kernel reads only the 3x4 block of viewmat and fx, fy, cx, cy of K; reject
+    // anything else (allowing round-off from matrix inversion).
+    auto near = [](double a, double b) { return std::fabs(a - b) <= 1e-9 * (1 + std::fabs(b)); };
+    const double* v = p->viewmat;
+    if (!(near(v[12], 0) && near(v[13], 0) && near(v[14], 0) && near(v[15], 1)))
+        return fail("viewmat's last row must be [0, 0, 0, 1]");
+    const double* K = p->K;
+    if (!(near(K[1] / K[0], 0) && near(K[3], 0) && near(K[6], 0) && near(K[7], 0) &&
+          near(K[8], 1)))
+        return fail("K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)");
+    if (!(K[0] > 0 && K[4] > 0)) return fail("K[0,0] and K[1,1] must be positive");
+    if (!(std::isfinite(p->near_plane) && p->near_plane > 0))
+        return fail("near_plane must be positive and finite");
+    if (!(p->far_plane > p->near_plane)) return fail("far_plane must exceed near_plane");
+    if (!(std::isfinite(p->eps2d) && p->eps2d >= 0)) return fail("eps2d must be >= 0");
+    for (float v : p->background)
+        if (!std::isfinite(v)) return fail("background has a non-finite entry");
+    return true;
+}
+
+int thread_count(const ah_splat_params& p) {
+    return p.num_threads > 0 ? p.num_threads : omp_get_max_threads();
+}
+
+struct Context {
+    ah_splat_params params;
+    Camera cam;
+    int64_t n;
+    std::vector<float> means, log_scales, quats, logits, colors;
+    Projected proj;
+    Bins bins;
+    std::vector<float> T_final;
+    std::vector<int32_t> last;
+
+    Context(const ah_splat_params& p, int64_t n_) : params(p), cam(p), n(n_) {}
+};
+
+template <typename T>
+std::vector<T> copy_of(const T* data, int64_t count) {
+    return count > 0 ? std::vector<T>(data, data + count) : std::vector<T>();
+}
+
+void project_all(Context& C) {
+    const int64_t n = C.n;
+    C.proj.mean2d.assign(2 * n, 0.0);
+    C.proj.conic.assign(3 * n, 0.0f);
+    C.proj.opacity.assign(n, 0.0f);
+    C.proj.depth.assign(n, 0.0f);
+    C.proj.bbox.assign(4 * n, 0);
+    std::vector<double> depth64(n, 0.0);
+    std::vector<uint8_t> visible(n, 0);
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+        const Projection P = project_gaussian(C.cam, &C.means[3 * i], &C.log_scales[3 * i],
+                                              &C.quats[4 * i], C.logits[i]);
+        Bounds B;
+        if (!P.visible || !screen_bounds(C.cam, P, B)) continue;
+        visible[i] = 1;
+        C.proj.mean2d[2 * i] = P.mean2d[0];
+        C.proj.mean2d[2 * i + 1] = P.mean2d[1];
+        for (int k = 0; k < 3; ++k) C.proj.conic[3 * i + k] = float(P.conic[k]);
+        C.proj.opacity[i] = float(P.opacity);
+        C.proj.depth[i] = float(P.tc[2]);
+        depth64[i] = P.tc[2];
+        for (int k = 0; k < 4; ++k) C.proj.bbox[4 * i + k] = B.bbox[k];
+    }
+    std::vector<int32_t> ids;
+    for (int64_t i = 0; i < n; ++i)
+        if (visible[i]) ids.push_back(int32_t(i));
+    bin_tiles(C.bins, sort_by_depth(ids, depth64), C.proj.bbox, C.params.width,
+              C.params.height, thread_count(C.params));
+}
+
+TileFrame frame_of(const Context& C, int64_t tile) {
+    return TileFrame{int(tile % C.bins.tiles_x) * kTile, int(tile / C.bins.tiles_x) * kTile,
+                     C.params.width, C.params.height};
+}
+
+void render(Context& C, float* rgb, float* alpha, float* depth) {
+    const int64_t pixels = int64_t(C.params.width) * C.params.height;
+    C.T_final.assign(pixels, 1.0f);
+    C.last.assign(pixels, 0);
+    const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
+#pragma omp parallel num_threads(thread_count(C.params))
+    {
+        std::vector<TileSplat> G;
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t t = 0; t < n_tiles; ++t) {
+            const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
+            const TileFrame f = frame_of(C, t);
+            gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox,
+                        f.oy);
+            composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
+                              C.last.data());
+        }
+    }
+}
+
+void backward(Context& C, const float* g_rgb, const float* g_alpha, const float* g_depth,
+              float* d_means, float* d_log_scales, float* d_quats, float* d_logits,
+              float* d_colors) {
+    const int64_t n = C.n;
+    const int threads = thread_count(C.params);
+    const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
+    std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
+#pragma omp parallel num_threads(threads)
+    {
+        std::vector<TileSplat> G;
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t t = 0; t < n_tiles; ++t) {
+            const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
+            const TileFrame f = frame_of(C, t);
+            gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox,
+                        f.oy);
+            composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth,
+                               C.T_final.data(), C.last.data(), &entry_grad[s * kEntryGrad]);
+        }
+    }
+
+    std::memset(d_means, 0, sizeof(float) * 3 * n);
+    std::memset(d_log_scales, 0, sizeof(float) * 3 * n);
+    std::memset(d_quats, 0, sizeof(float) * 4 * n);
+    std::memset(d_logits, 0, sizeof(float) * n);
+    std::memset(d_colors, 0, sizeof(float) * 3 * n);
+    const int64_t n_visible = int64_t(C.bins.sorted.size());
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int64_t k = 0; k < n_visible; ++k) {
+        const int32_t i = C.bins.sorted[k];
+        double acc[kEntryGrad] = {0};
+        for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
+            const float* e = &entry_grad[C.bins.entry_of[q] * kEntryGrad];
+            for (int c = 0; c < kEntryGrad; ++c) acc[c] += e[c];
+        }
+        ProjectionGrad g;
+        g.mean2d[0] = acc[0];
+        g.mean2d[1] = acc[1];
+        g.conic[0] = acc[2];
+        g.conic[1] = acc[3];
+        g.conic[2] = acc[4];
+        g.opacity = acc[5];
+        g.depth = acc[9];
+        const Projection P = project_gaussian(C.cam, &C.means[3 * i], &C.log_scales[3 * i],
+                                              &C.quats[4 * i], C.logits[i]);
+        double dm[3], dls[3], dq[4], dl;
+        project_gaussian_vjp(C.cam, P, g, dm, dls, dq, &dl);
+        for (int c = 0; c < 3; ++c) {
+            d_means[3 * i + c] = saturate(dm[c]);
+            d_log_scales[3 * i + c] = saturate(dls[c]);
+            d_colors[3 * i + c] = saturate(acc[6 + c]);
+        }
+        for (int c = 0; c < 4; ++c) d_quats[4 * i + c] = saturate(dq[c]);
+        d_logits[i] = saturate(dl);
+    }
+}
+
+}  // namespace
+
+extern "C" {
+
+int32_t ah_splat_abi_version(void) { return AH_SPLAT_ABI_VERSION; }
+
+int ah_splat_project(const ah_splat_params* params, int64_t n, const float* means,
+                     const float* log_scales, const float* quats, const float* opacity_logits,
+                     double* means2d, float* conics, float* depths, float* opacities,
+                     int32_t* radii, char* err, int32_t err_len) {
+    if (!check_params(params, err, err_len)) return -1;
+    const Camera cam(*params);
+#pragma omp parallel for num_threads(thread_count(*params)) schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+        const Projection P = project_gaussian(cam, &means[3 * i], &log_scales[3 * i],
+                                              &quats[4 * i], opacity_logits[i]);
+        Bounds B;
+        const bool visible = P.visible && screen_bounds(cam, P, B);
+        means2d[2 * i] = visible ? P.mean2d[0] : 0.0;
+        means2d[2 * i + 1] = visible ? P.mean2d[1] : 0.0;
+        for (int k = 0; k < 3; ++k) conics[3 * i + k] = visible ? float(P.conic[k]) : 0.0f;
+        depths[i] = visible ? float(P.tc[2]) : 0.0f;
+        opacities[i] = visible ? float(P.opacity) : 0.0f;
+        radii[2 * i] = visible ? int32_t(std::ceil(B.radius[0])) : 0;
+        radii[2 * i + 1] = visible ? int32_t(std::ceil(B.radius[1])) : 0;
+    }
+    return 0;
+}
+
+void* ah_splat_forward(const ah_splat_params* params, int64_t n, const float* means,
+                       const float* log_scales, const float* quats,
+                       const float* opacity_logits, const float* colors, float* out_rgb,
+                       float* out_alpha, float* out_depth, char* err, int32_t err_len) {
+    if (!check_params(params, err, err_len)) return nullptr;
+    if (n < 0 || n > INT32_MAX) {
+        set_error(err, err_len, "number of Gaussians out of range");
+        return nullptr;
+    }
+    try {
+        auto C = std::make_unique<Context>(*params, n);
+        C->means = copy_of(means, 3 * n);
+        C->log_scales = copy_of(log_scales, 3 * n);
+        C->quats = copy_of(quats, 4 * n);
+        C->logits = copy_of(opacity_logits, n);
+        C->colors = copy_of(colors, 3 * n);
+        project_all(*C);
+        render(*C, out_rgb, out_alpha, out_depth);
+        return C.release();
+    } catch (const std::bad_alloc&) {
+        set_error(err, err_len, "out of memory in splat forward");
+    } catch (const std::exception& e) {
+        set_error(err, err_len, e.what());
+    }
+    return nullptr;
+}
+
+int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const float* g_depth,
+                      float* d_means, float* d_log_scales, float* d_quats,
+                      float* d_opacity_logits, float* d_colors, char* err, int32_t err_len) {
+    if (!ctx || !g_rgb) {
+        set_error(err, err_len, "splat backward needs a forward context and g_rgb");
+        return -1;
+    }
+    try {
+        backward(*static_cast<Context*>(ctx), g_rgb, g_alpha, g_depth, d_means, d_log_scales,
+                 d_quats, d_opacity_logits, d_colors);
+        return 0;
+    } catch (const std::bad_alloc&) {
+        set_error(err, err_len, "out of memory in splat backward");
+    } catch (const std::exception& e) {
+        set_error(err, err_len, e.what());
+    }
+    return -1;
+}
+
+void ah_splat_stats(const void* ctx, int64_t* stats) {
+    const Context* C = static_cast<const Context*>(ctx);
+    stats[0] = int64_t(C->bins.sorted.size());
+    stats[1] = int64_t(C->bins.tile_ids.size());
+}
+
+void ah_splat_release(void* ctx) { delete static_cast<Context*>(ctx); }
+
+}  // extern "C"
