@@ -2,8 +2,9 @@
 
 - OpenCV camera (ours): x right, y down, z forward; world-to-camera 4x4; K in pixels with
   pixel centres at +0.5 (pixel i covers [i, i+1)).
-- Blender camera: looks down its local -Z with +Y up; intrinsics as lens (mm), sensor width
-  (mm, horizontal fit), shift in units of the image width, pixel aspect for fx != fy.
+- Blender camera: looks down its local -Z with +Y up; intrinsics as lens (mm), sensor size
+  (mm) and fit, shift in units of the fitted image side, pixel aspect for fx != fy. Imported
+  cameras use the horizontal fit; any fit converts back to K.
 - FLAME space is y up; Blender's world is z up. Blender world = FLAME_TO_BLENDER @ FLAME world
   (+90 degrees about x), applied as the object transform of imported heads.
 """
@@ -21,7 +22,7 @@ SENSOR_WIDTH_MM = 36.0
 
 @dataclass(frozen=True)
 class BlenderCamera:
-    """Blender camera data settings (sensor_fit is always 'HORIZONTAL')."""
+    """Blender camera data and render settings that decide the projection."""
 
     lens: float
     sensor_width: float
@@ -31,6 +32,8 @@ class BlenderCamera:
     resolution_y: int
     pixel_aspect_x: float = 1.0
     pixel_aspect_y: float = 1.0
+    sensor_fit: str = "HORIZONTAL"  # or "VERTICAL", "AUTO"
+    sensor_height: float = 24.0
 
 
 def intrinsics_to_blender(K, width: int, height: int,
@@ -50,12 +53,25 @@ def intrinsics_to_blender(K, width: int, height: int,
 
 
 def blender_to_intrinsics(cam: BlenderCamera) -> np.ndarray:
-    """K (3x3, pixels) of a Blender camera with horizontal sensor fit."""
+    """K (3x3, pixels) of a Blender camera, as Blender computes its view plane.
+
+    The fitted side spans the sensor size: AUTO uses sensor_width on the larger (aspect
+    corrected) side, VERTICAL uses sensor_height on the height; shifts are in units of it.
+    """
     width, height = cam.resolution_x, cam.resolution_y
     ycor = cam.pixel_aspect_y / cam.pixel_aspect_x
-    fx = cam.lens * width / cam.sensor_width
-    return np.array([[fx, 0, width / 2 - cam.shift_x * width],
-                     [0, fx / ycor, height / 2 + cam.shift_y * width / ycor],
+    fit, sensor = cam.sensor_fit, cam.sensor_width
+    if fit == "AUTO":
+        fit = "HORIZONTAL" if cam.pixel_aspect_x * width >= cam.pixel_aspect_y * height else (
+            "VERTICAL")
+    elif fit == "VERTICAL":
+        sensor = cam.sensor_height
+    elif fit != "HORIZONTAL":
+        raise ValueError(f"unknown sensor_fit {cam.sensor_fit!r}")
+    side = width if fit == "HORIZONTAL" else ycor * height  # the fitted side, in x pixels
+    fx = cam.lens * side / sensor
+    return np.array([[fx, 0, width / 2 - cam.shift_x * side],
+                     [0, fx / ycor, height / 2 + cam.shift_y * side / ycor],
                      [0, 0, 1]])
 
 

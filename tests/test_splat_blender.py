@@ -21,14 +21,21 @@ CAMERAS = [
                   resolution_y=48),
     BlenderCamera(lens=35.0, sensor_width=32.0, shift_x=0.12, shift_y=-0.07, resolution_x=40,
                   resolution_y=56, pixel_aspect_x=1.0, pixel_aspect_y=1.25),
+    BlenderCamera(lens=40.0, sensor_width=30.0, shift_x=-0.05, shift_y=0.1, resolution_x=36,
+                  resolution_y=60, sensor_fit="AUTO"),  # portrait: AUTO fits the height
+    BlenderCamera(lens=28.0, sensor_width=36.0, sensor_height=20.0, shift_x=0.03,
+                  shift_y=-0.02, resolution_x=64, resolution_y=40, pixel_aspect_x=1.5,
+                  sensor_fit="VERTICAL"),
 ]
+CAMERA_IDS = ["default", "shift_aspect", "auto_portrait", "vertical_aspect"]
 
 
 def bpy_camera(cam: BlenderCamera, matrix_world):
     scene = bpy.context.scene
     data = bpy.data.cameras.new("splat_test_camera")
-    data.sensor_fit = "HORIZONTAL"
-    data.lens, data.sensor_width = cam.lens, cam.sensor_width
+    data.sensor_fit = cam.sensor_fit
+    data.lens, data.sensor_width, data.sensor_height = cam.lens, cam.sensor_width, (
+        cam.sensor_height)
     data.shift_x, data.shift_y = cam.shift_x, cam.shift_y
     obj = bpy.data.objects.new("splat_test_camera", data)
     scene.collection.objects.link(obj)
@@ -78,7 +85,7 @@ def restore_blender_state():
         bpy.data.cameras.remove(data)
 
 
-@pytest.mark.parametrize("cam", CAMERAS, ids=["default", "shift_aspect"])
+@pytest.mark.parametrize("cam", CAMERAS, ids=CAMERA_IDS)
 def test_opencv_camera_projects_like_blender(cam):
     rng = np.random.default_rng(0)
     matrix_world = look_from((0.3, -0.7, 0.2), (0.0, 0.0, 0.05))
@@ -90,7 +97,7 @@ def test_opencv_camera_projects_like_blender(cam):
     np.testing.assert_allclose(ours, bpy_pixels(scene, obj, cam, points), atol=1e-3)
 
 
-@pytest.mark.parametrize("cam", CAMERAS, ids=["default", "shift_aspect"])
+@pytest.mark.parametrize("cam", CAMERAS, ids=CAMERA_IDS)
 def test_rendered_gaussian_lands_where_blender_projects_it(cam):
     """A small round Gaussian in FLAME space: its alpha-weighted centroid in the exact render
     equals Blender's projection of FLAME_TO_BLENDER @ mean (pixel centres at +0.5)."""
