@@ -1,0 +1,240 @@
+"""Training frames from a folder: images, masks, the parts mask B, cameras and FLAME codes.
+
+numpy only (no torch), so tests and tools use it without the training stack.
+
+Folder layout (DATA):
+
+    DATA/frames/<n>.png|.jpg|.jpeg|.exr   the video frames, numbered (00000.png, img_12.jpg)
+    DATA/masks/<n>.<ext>                  optional: foreground alpha, the frames' numbers
+    DATA/parts/<n>.<ext>                  optional: the eye/mouth mask B, the frames' numbers
+    DATA/tracking.npz                     the tracked sequence (or pass `tracking=` a file or
+                                          folder in any format `read_sequence` reads)
+
+- Frames and tracking match by order: the i-th frame file (by number) is the i-th tracked
+  frame. Their counts must agree; when frames are fewer, the error names the missing frame
+  numbers. Numbers that step unlike the tracking's frame ids give a warning.
+- Every frame must have the same size, and so must its mask and parts files; the tracking's
+  `image_size` (when stored) must have the frames' aspect ratio. The tracking must have a
+  camera (K and w2c).
+- Images are resized to `resolution`: an int is the longer side (the aspect ratio kept, the
+  other side rounded), a pair is (H, W). Shrinking averages the area each output pixel
+  covers, enlarging is bilinear; pixel centres sit at +0.5 on both sides, so
+  K' = diag(s_x, s_y, 1) K with s_x = W' / W_k and s_y = H' / H_k, where (H_k, W_k) is the
+  size K was tracked at (`image_size`, else the frames' size).
+- Background: where a mask exists (a masks/ file, else the frame's own alpha channel), the
+  frame is composited onto `background` (RGB in [0,1], white by default) at full size
+  before resizing: image = mask * frame + (1 - mask) * background. The renderer in training
+  must clear to the same colour. Without masks, frames are used as they are and the mask
+  is all ones.
+- B: the parts/ files when given (resized, soft at the edges); else the model's eye and
+  mouth labels rasterized with occlusion in each frame (`parts_mask`).
+- Split (paper 4.1): the first 90 % of frames train, the last 10 % test (at least one each
+  when there are two or more frames); `split="all"` gives every frame.
+
+`FrameDataset(...)[i]` is a dict of float32 arrays: `image` (H,W,3) in [0,1], `mask` (H,W),
+`parts` (H,W), `K` (3,3), `w2c` (4,4), `codes` {shape, expr, jaw, neck, eyes, rotation,
+translation} (1-D each, fitted to the model's widths), plus `frame_id` and `index` (the
+frame's position in the whole sequence). With `cache=True` (default) frames are decoded
+once and kept (about 20 bytes per pixel); the arrays are then shared, so do not modify them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..flame.lbs import forward
+from ..flame.model import FlameModel
+from ..io.errors import InputError, warn_input
+from ..sequences import Sequence, read_sequence
+from ..sequences.common import numbered_files
+from .images import IMAGE_SUFFIXES, image_size, read_image, read_mask, resize
+from .parts_mask import parts_mask
+
+FRAMES_DIR, MASKS_DIR, PARTS_DIR, TRACKING_FILE = "frames", "masks", "parts", "tracking.npz"
+SPLITS = ("train", "test", "all")
+CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
+
+
+def split_point(n_frames: int) -> int:
+    """How many leading frames train: 90 % rounded down, which leaves at least one test
+    frame and, from two frames on, at least one training frame. A single frame trains."""
+    return 9 * n_frames // 10 if n_frames > 1 else n_frames
+
+
+def target_size(resolution, source: tuple[int, int]) -> tuple[int, int]:
+    """(H', W') for `resolution` (int: the longer side; or (H, W)) and a source (H, W)."""
+    if isinstance(resolution, int | np.integer):
+        size = (resolution,) * 2
+        if resolution > 0:
+            size = tuple(max(round(n * resolution / max(source)), 1) for n in source)
+    else:
+        size = tuple(int(n) for n in resolution)
+    if len(size) != 2 or min(size) < 1:
+        raise ValueError(f"resolution must be a positive int or (H, W), got {resolution!r}")
+    return size
+
+
+def _numbered_images(folder: Path) -> list[tuple[int, Path]]:
+    """The folder's numbered images, one suffix only (see `numbered_files` for the rules)."""
+    if not folder.is_dir():
+        raise InputError(folder, None, "folder not found")
+    suffixes = sorted({p.suffix for p in folder.iterdir()
+                       if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES})
+    if not suffixes:
+        raise InputError(folder, None, "no PNG, JPG or EXR images in this folder")
+    if len(suffixes) > 1:
+        raise InputError(folder, None, f"mixed image types ({', '.join(suffixes)}); "
+                         "use one per folder")
+    return numbered_files(folder, suffixes[0])
+
+
+def _companions(folder: Path, frames: list[tuple[int, Path]], what: str) -> list[Path] | None:
+    """The masks/ or parts/ file of every frame (None when the folder does not exist)."""
+    if not folder.exists():
+        return None
+    by_number = dict(_numbered_images(folder))
+    missing = [path.name for n, path in frames if n not in by_number]
+    if missing:
+        shown = ", ".join(missing[:8]) + (f" (and {len(missing) - 8} more)"
+                                          if len(missing) > 8 else "")
+        raise InputError(folder, None, f"no {what} for frames {shown}: every frame needs one "
+                         "(same number)")
+    return [by_number[n] for n, _ in frames]
+
+
+def _match_tracking(frames: list[tuple[int, Path]], seq: Sequence, folder: Path) -> None:
+    numbers = np.array([n for n, _ in frames])
+    ids = seq.frame_ids
+    if len(numbers) < len(ids):
+        expected = ids - ids[0] + numbers[0]
+        missing = np.setdiff1d(expected, numbers)
+        detail = (f"; missing frame numbers {', '.join(map(str, missing[:12]))}"
+                  + (" ..." if len(missing) > 12 else "")) if len(missing) else ""
+        raise InputError(folder, None, f"{len(numbers)} frames for {len(ids)} tracked frames "
+                         f"({seq.source}){detail}")
+    if len(numbers) > len(ids):
+        raise InputError(folder, None, f"{len(numbers)} frames but the tracking "
+                         f"({seq.source}) has only {len(ids)}: frames "
+                         f"{frames[len(ids)][1].name} and after have no tracking")
+    if not np.array_equal(np.diff(numbers), np.diff(ids)):
+        warn_input(folder, None, "frame numbers do not step like the tracking's frame ids; "
+                   "frames are matched to tracked frames by order")
+
+
+def _one_size(paths: list[Path], want: tuple[int, int] | None = None) -> tuple[int, int]:
+    """The (H, W) all `paths` share: `want` when given, else the first file's."""
+    reference = want
+    for path in paths:
+        size = image_size(path)
+        if reference is not None and size != reference:
+            other = "the frames are" if want is not None else f"{paths[0].name} is"
+            raise InputError(path, None, f"{size[1]}x{size[0]} pixels, but {other} "
+                             f"{reference[1]}x{reference[0]}: sizes must match")
+        reference = reference or size
+    return reference
+
+
+class FrameDataset:
+    """Frames of one split (module docstring); `len()` and `[i]` give per-frame dicts."""
+
+    def __init__(self, data_dir, resolution, model: FlameModel, *, split: str = "train",
+                 tracking=None, background=(1.0, 1.0, 1.0), cache: bool = True):
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        self.root = Path(data_dir)
+        if not self.root.is_dir():
+            raise InputError(self.root, None, "data folder not found")
+        self.model = model
+        self.background = np.asarray(background, dtype=np.float32)
+        if self.background.shape != (3,) or not ((self.background >= 0)
+                                                 & (self.background <= 1)).all():
+            raise ValueError(f"background must be an RGB triple in [0, 1], got {background!r}")
+        self.sequence = self._read_tracking(tracking).fit_to_model(model)
+        frames = _numbered_images(self.root / FRAMES_DIR)
+        _match_tracking(frames, self.sequence, self.root / FRAMES_DIR)
+        self.frame_paths = [p for _, p in frames]
+        self.mask_paths = _companions(self.root / MASKS_DIR, frames, "mask")
+        self.parts_paths = _companions(self.root / PARTS_DIR, frames, "parts mask")
+        if self.parts_paths is None and model.vertex_parts is None:
+            warn_input(model.source, "vertex_parts", f"no eye/mouth labels in the model and no "
+                       f"{PARTS_DIR}/ masks in {self.root}: the parts mask B is empty")
+        source = _one_size(self.frame_paths)
+        for companions in (self.mask_paths, self.parts_paths):
+            if companions is not None:
+                _one_size(companions, want=source)
+        self.source_size = source
+        self.size = target_size(resolution, source)
+        self.K = self._scaled_intrinsics(source)
+        n_train = split_point(len(frames))
+        self.indices = {"train": range(n_train), "test": range(n_train, len(frames)),
+                        "all": range(len(frames))}[split]
+        if len(self.indices) == 0:
+            raise InputError(self.root, None, f"the '{split}' split of {len(frames)} frame(s) "
+                             "is empty: a train/test split needs at least two frames")
+        self.split = split
+        self._cache: dict[int, dict] | None = {} if cache else None
+
+    def _read_tracking(self, tracking) -> Sequence:
+        path = Path(tracking) if tracking is not None else self.root / TRACKING_FILE
+        if tracking is None and not path.exists():
+            raise InputError(self.root, None, f"no {TRACKING_FILE} in this folder: pass the "
+                             "tracked sequence (any supported format) as tracking=PATH")
+        seq = read_sequence(path)
+        if not seq.has_camera:
+            raise InputError(path, "K", "the tracking has no camera (K and w2c); training "
+                             "needs one per frame")
+        return seq
+
+    def _scaled_intrinsics(self, source: tuple[int, int]) -> np.ndarray:
+        tracked = self.sequence.image_size or source
+        h, w = source
+        if abs(tracked[0] * w / tracked[1] - h) > 1.0:
+            raise InputError(self.root / FRAMES_DIR, None, f"frames are {w}x{h} pixels but the "
+                             f"tracking's camera is for {tracked[1]}x{tracked[0]}: the aspect "
+                             "ratios differ")
+        scale = np.diag([self.size[1] / tracked[1], self.size[0] / tracked[0], 1.0])
+        return scale @ self.sequence.K
+
+    @property
+    def frame_ids(self) -> np.ndarray:
+        return self.sequence.frame_ids[list(self.indices)]
+
+    @property
+    def has_masks(self) -> bool:
+        return self.mask_paths is not None
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, i: int) -> dict:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"frame {i} of a {len(self)}-frame split")
+        t = self.indices[i]
+        if self._cache is not None and t in self._cache:
+            return self._cache[t]
+        item = self._load(t)
+        if self._cache is not None:
+            self._cache[t] = item
+        return item
+
+    def _load(self, t: int) -> dict:
+        seq = self.sequence
+        rgb, alpha = read_image(self.frame_paths[t])
+        mask = read_mask(self.mask_paths[t]) if self.has_masks else alpha
+        if mask is not None:
+            rgb = mask[..., None] * rgb + (1 - mask[..., None]) * self.background
+        mask = np.ones(self.source_size, np.float32) if mask is None else mask
+        codes = {k: getattr(seq, k)[t] for k in CODES}
+        if self.parts_paths is not None:
+            parts = resize(read_mask(self.parts_paths[t]), self.size)
+        else:
+            vertices = forward(self.model, static_offset=seq.static_offset, **codes)[0]
+            parts = parts_mask(self.model, vertices, self.K[t], seq.w2c[t], self.size)
+        return {"image": np.clip(resize(rgb.astype(np.float32), self.size), 0, 1),
+                "mask": np.clip(resize(mask.astype(np.float32), self.size), 0, 1),
+                "parts": parts.astype(np.float32),
+                "K": self.K[t].astype(np.float32), "w2c": seq.w2c[t].astype(np.float32),
+                "codes": {k: v.astype(np.float32) for k, v in codes.items()},
+                "frame_id": int(seq.frame_ids[t]), "index": t}
