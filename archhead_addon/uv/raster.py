@@ -8,7 +8,7 @@ A position map is then a gather of the face's three vertices and a barycentric s
 
 from __future__ import annotations
 
-import functools
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,14 +75,22 @@ def rasterize(uv: np.ndarray, uv_faces: np.ndarray, size: int) -> UVTable:
 
 
 class UVRaster:
-    """The tables of one layout, built on first use and cached per resolution."""
+    """The tables of one layout, built on first use and kept for the `max_cached` most
+    recently used resolutions (a plain dict, so objects holding a raster still pickle)."""
 
     def __init__(self, uv: np.ndarray, uv_faces: np.ndarray, max_cached: int = 64):
         self.uv, self.uv_faces = np.asarray(uv, np.float64), np.asarray(uv_faces, np.int64)
-        self.table = functools.lru_cache(maxsize=max_cached)(self._build)
+        self.max_cached = max_cached
+        self._tables: OrderedDict[int, UVTable] = OrderedDict()
 
-    def _build(self, size: int) -> UVTable:
-        return rasterize(self.uv, self.uv_faces, size)
+    def table(self, size: int) -> UVTable:
+        if size in self._tables:
+            self._tables.move_to_end(size)
+        else:
+            self._tables[size] = rasterize(self.uv, self.uv_faces, size)
+            if len(self._tables) > self.max_cached:
+                self._tables.popitem(last=False)
+        return self._tables[size]
 
 
 def position_map(verts, vert_idx, bary):

@@ -1,0 +1,143 @@
+"""The avatar checkpoint: one npz that numpy alone reads (no pickles), written atomically.
+
+Keys (format version 1):
+  format          "archhead-avatar"
+  format_version  int64, 1
+  config          the AvatarConfig as JSON
+  model_id        id of the FLAME model the avatar was trained on (before teeth)
+  uv_layout_id    hash of uv / uv_faces (see uv.layout.layout_id)
+  uv, uv_faces    the layout of the avatar mesh (model + teeth), so no UV generator is needed
+                  where the avatar is used (Blender's Python has no xatlas)
+  identity_shape  (n_shape,) the avatar's FLAME identity code
+  param/<name>    float32, every learned array of config.parameter_shapes: the feature field
+                  (param/features.<S>), the mapping network and the decoder
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..flame.model import FlameModel, load_model
+from ..flame.teeth import add_teeth
+from ..io.atomic import save_npz_atomic
+from ..io.errors import InputError
+from ..uv.layout import layout_id
+from .config import AvatarConfig, parameter_shapes
+
+FORMAT = "archhead-avatar"
+FORMAT_VERSION = 1
+_READ_ERRORS = (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError)
+
+
+@dataclass
+class AvatarCheckpoint:
+    config: AvatarConfig
+    model_id: str
+    uv: np.ndarray
+    uv_faces: np.ndarray
+    identity_shape: np.ndarray
+    params: dict[str, np.ndarray]
+
+    @property
+    def uv_layout_id(self) -> str:
+        return layout_id(self.uv, self.uv_faces)
+
+
+def write_checkpoint(path, ckpt: AvatarCheckpoint) -> None:
+    _check_params(path, ckpt.config, ckpt.params)
+    arrays = {"format": np.str_(FORMAT), "format_version": np.int64(FORMAT_VERSION),
+              "config": np.str_(ckpt.config.to_json()), "model_id": np.str_(ckpt.model_id),
+              "uv_layout_id": np.str_(ckpt.uv_layout_id),
+              "uv": np.asarray(ckpt.uv, np.float64),
+              "uv_faces": np.asarray(ckpt.uv_faces, np.int64),
+              "identity_shape": np.asarray(ckpt.identity_shape, np.float32)}
+    arrays.update({f"param/{k}": np.asarray(v, np.float32) for k, v in ckpt.params.items()})
+    save_npz_atomic(path, **arrays)
+
+
+def read_checkpoint(path) -> AvatarCheckpoint:
+    """Read and validate; any problem is an InputError naming the file, the key and what."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, None, "avatar checkpoint not found")
+    try:
+        z = np.load(path, allow_pickle=False)
+    except _READ_ERRORS as exc:
+        raise InputError(path, None, f"not a readable checkpoint (truncated or not an npz: "
+                         f"{exc})") from exc
+    if not hasattr(z, "files"):
+        raise InputError(path, None, "an npy array, not an avatar checkpoint (npz)")
+    with z:
+        def get(key):
+            if key not in z.files:
+                raise InputError(path, key, "missing")
+            try:
+                return z[key]
+            except _READ_ERRORS as exc:  # a damaged member fails its CRC or its header here
+                raise InputError(path, key, f"unreadable (corrupt file?): {exc}") from exc
+
+        if "format" not in z.files or str(get("format")) != FORMAT:
+            raise InputError(path, "format", "not an ArchHead avatar checkpoint")
+        version = get("format_version")
+        if version.shape != () or version.dtype.kind not in "iu" or version != FORMAT_VERSION:
+            raise InputError(path, "format_version", f"format version {version}; this ArchHead "
+                             f"reads version {FORMAT_VERSION}")
+        try:
+            config = AvatarConfig.from_json(str(get("config")))
+        except (ValueError, json.JSONDecodeError) as exc:
+            raise InputError(path, "config", f"invalid: {exc}") from exc
+        params = {k[len("param/"):]: get(k) for k in z.files if k.startswith("param/")}
+        ckpt = AvatarCheckpoint(config=config, model_id=str(get("model_id")), uv=get("uv"),
+                                uv_faces=get("uv_faces"), identity_shape=get("identity_shape"),
+                                params=params)
+        stored_id = str(get("uv_layout_id"))
+    _check_params(path, config, params)
+    if ckpt.uv.ndim != 2 or ckpt.uv.shape[1] != 2 or ckpt.uv_faces.ndim != 2 \
+            or ckpt.uv_faces.shape[1] != 3 or ckpt.uv_faces.min(initial=0) < 0 \
+            or ckpt.uv_faces.max(initial=0) >= len(ckpt.uv):
+        raise InputError(path, "uv_faces", "not a (F,3) index array into uv (Vt,2)")
+    if ckpt.uv_layout_id != stored_id:
+        raise InputError(path, "uv_layout_id", f"{stored_id} does not match the stored layout "
+                         f"({ckpt.uv_layout_id}); the file is damaged")
+    if ckpt.identity_shape.ndim != 1 or not np.isfinite(ckpt.identity_shape).all():
+        raise InputError(path, "identity_shape", "expected a finite 1-D array")
+    return ckpt
+
+
+def _check_params(path, config: AvatarConfig, params: dict) -> None:
+    want = parameter_shapes(config)
+    extra = sorted(set(params) - set(want))
+    if extra:
+        raise InputError(path, f"param/{extra[0]}", "not a parameter of this configuration")
+    for name, shape in want.items():
+        key = f"param/{name}"
+        if name not in params:
+            raise InputError(path, key, "missing")
+        value = params[name]
+        if tuple(value.shape) != shape:
+            raise InputError(path, key, f"shape {tuple(value.shape)}, the config needs {shape}")
+        if not np.isfinite(value).all():
+            raise InputError(path, key, "contains NaN or Inf")
+
+
+def checkpoint_mesh(ckpt: AvatarCheckpoint, flame=None, path=None) -> FlameModel:
+    """The avatar mesh: the FLAME model (a FlameModel, a file, or None = built-in) the avatar
+    was trained on, with teeth, carrying the checkpoint's UV layout."""
+    base = flame if isinstance(flame, FlameModel) else load_model(flame)
+    if base.model_id != ckpt.model_id:
+        raise InputError(path, "model_id", f"the avatar was trained on '{ckpt.model_id}', "
+                         f"the FLAME model given is '{base.model_id}'")
+    mesh = add_teeth(base)
+    if len(ckpt.uv_faces) != len(mesh.faces):
+        raise InputError(path, "uv_faces", f"{len(ckpt.uv_faces)} UV faces for a mesh of "
+                         f"{len(mesh.faces)} faces")
+    if len(ckpt.identity_shape) > base.n_shape:
+        raise InputError(path, "identity_shape", f"{len(ckpt.identity_shape)} values, the model "
+                         f"has {base.n_shape} identity components")
+    return mesh.replace(uv=ckpt.uv, uv_faces=ckpt.uv_faces)

@@ -1,0 +1,131 @@
+"""Avatar configuration (stored as JSON in checkpoints) and the names and shapes of its weights.
+
+`parameter_shapes` is the one list of what a checkpoint holds; the torch model is built to
+match it (a test holds them together) and the numpy runtime reads weights by these names.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+SH_DEGREE = 3
+# the five decoder heads and their raw output widths, in decoding order
+HEADS = {"offset": 3, "scale": 3, "rotation": 4, "opacity": 1, "colour": 3 * (SH_DEGREE + 1) ** 2}
+N_FREQS = 12
+PE_DIM = 3 + 2 * 3 * N_FREQS  # 75: the position, then sin and cos of 12 octaves
+JAW_DIM, EYES_DIM = 3, 6
+QUAT_EPS = 1e-8  # below this norm a raw quaternion is replaced by the identity
+
+
+@dataclass(frozen=True)
+class AvatarConfig:
+    s_max: int = 256
+    s_min: int = 64
+    levels: tuple[int, ...] = (256, 128, 64)  # feature-field resolutions; () = no feature map
+    feature_dim: int = 64
+    tau: float = 0.35  # blend temperature of eq. 5
+    n_expr: int = 100  # expression codes the mapping network reads
+    drive_dim: int = 20  # K
+    mapping_hidden: int = 128
+    hidden: int = 32  # hidden width of the offset, scale, rotation and opacity heads
+    colour_hidden: int = 64  # hidden width of the colour head (48 SH outputs, most detail)
+    head_layers: int = 2  # hidden layers per head; the first is fused across the five heads
+    offset_unit: float = 0.01  # metres per unit of the offset head's output
+    log_scale_min: float = math.log(1e-4)  # clamp of the log scales (0.1 mm .. 5 cm)
+    log_scale_max: float = math.log(5e-2)
+    init_opacity: float = 0.2
+    init_rgb: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    pe_centre: tuple[float, float, float] = (0.0, 0.0, 0.0)  # head centre, metres
+
+    def __post_init__(self):
+        if not 1 <= self.s_min <= self.s_max:
+            raise ValueError(f"need 1 <= s_min <= s_max, got {self.s_min}, {self.s_max}")
+        if len(set(self.levels)) != len(self.levels) or any(s < 1 for s in self.levels):
+            raise ValueError(f"feature levels must be distinct positive sizes: {self.levels}")
+        if self.tau <= 0 or self.head_layers < 1 or self.log_scale_min >= self.log_scale_max \
+                or min(self.hidden, self.colour_hidden, self.feature_dim, self.drive_dim) < 1:
+            raise ValueError("need tau > 0, head_layers >= 1, positive widths and "
+                             "log_scale_min < log_scale_max")
+
+    @property
+    def in_dim(self) -> int:
+        """Decoder input per texel: PE (75) | feature (64, if any) | drive (K) | l."""
+        return PE_DIM + (self.feature_dim if self.levels else 0) + self.drive_dim + 1
+
+    def head_width(self, name: str) -> int:
+        return self.colour_hidden if name == "colour" else self.hidden
+
+    def head_slices(self) -> dict[str, slice]:
+        """Each head's rows in the fused first layer's output, in HEADS order."""
+        out, start = {}, 0
+        for name in HEADS:
+            out[name] = slice(start, start + self.head_width(name))
+            start += self.head_width(name)
+        return out
+
+    @property
+    def fused_width(self) -> int:
+        return sum(self.head_width(name) for name in HEADS)
+
+    @property
+    def mapping_in(self) -> int:
+        return self.n_expr + JAW_DIM + EYES_DIM
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> AvatarConfig:
+        """Raises ValueError (with the reason) on bad JSON or unknown / ill-typed fields."""
+        data = json.loads(text)
+        if not isinstance(data, dict):
+            raise ValueError("the config is not a JSON object")
+        known = {f.name for f in fields(cls)}
+        if set(data) - known:
+            raise ValueError(f"unknown config fields {sorted(set(data) - known)}")
+        for key in ("levels", "init_rgb", "pe_centre"):
+            if key in data:
+                data[key] = tuple(data[key])
+        try:
+            return cls(**data)
+        except TypeError as exc:
+            raise ValueError(str(exc)) from exc
+
+
+# Table 4 of the paper: the full model and its ablations, as config changes
+ABLATIONS = {
+    "full": {},
+    "no_fmap": {"levels": ()},
+    "fmap64": {"levels": (64,)},
+    "fmap128": {"levels": (128,)},
+    "fmap256": {"levels": (256,)},
+}
+
+
+def ablation(name: str, **changes) -> AvatarConfig:
+    if name not in ABLATIONS:
+        raise ValueError(f"unknown ablation {name!r}; choose from {sorted(ABLATIONS)}")
+    return replace(AvatarConfig(**changes), **ABLATIONS[name])
+
+
+def parameter_shapes(config: AvatarConfig) -> dict[str, tuple[int, ...]]:
+    """Every learned array by its checkpoint name (the torch state_dict key)."""
+    shapes: dict[str, tuple[int, ...]] = {}
+    for s in config.levels:
+        shapes[f"features.{s}"] = (config.feature_dim, s, s)
+    shapes["mapping.0.weight"] = (config.mapping_hidden, config.mapping_in)
+    shapes["mapping.0.bias"] = (config.mapping_hidden,)
+    shapes["mapping.2.weight"] = (config.drive_dim, config.mapping_hidden)
+    shapes["mapping.2.bias"] = (config.drive_dim,)
+    shapes["decoder.first.weight"] = (config.fused_width, config.in_dim)
+    shapes["decoder.first.bias"] = (config.fused_width,)
+    for name, width in HEADS.items():
+        h = config.head_width(name)
+        for i in range(config.head_layers - 1):
+            shapes[f"decoder.heads.{name}.hidden.{i}.weight"] = (h, h)
+            shapes[f"decoder.heads.{name}.hidden.{i}.bias"] = (h,)
+        shapes[f"decoder.heads.{name}.out.weight"] = (width, h)
+        shapes[f"decoder.heads.{name}.out.bias"] = (width,)
+    return shapes

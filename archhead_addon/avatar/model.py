@@ -1,0 +1,245 @@
+"""ArchitectHead in torch (paper section 3): the model that trains, and the reference the numpy
+runtime reproduces.
+
+One frame: FLAME (+ teeth) with the avatar's identity -> UV position map at
+S = round(S_max - l (S_max - S_min)) -> per texel [PE (75) | feature (64) | drive (K=20) | l]
+-> five MLP heads -> Gaussians. The network works in *head space*: FLAME posed by expression,
+neck, jaw and eyes but without the global rotation and translation, which are applied to the
+decoded means and rotations at the end; so the decoder never sees the rigid head motion and its
+offsets and rotations move with the head.
+
+Choices (the paper leaves them to its supplement):
+- Positional encoding: p = position - pe_centre in metres (pe_centre: the centre of the
+  identity's bounding box), then [p, sin(2^k p), cos(2^k p)] for k = 0..11: the finest period,
+  2 pi / 2048 m = 3 mm, is about two texels of the 256 map on the face.
+- Mapping network M: Linear(n_expr + 9, 128), ReLU, Linear(128, K), tanh. The tanh bounds the
+  driving code, so extreme expression and pose codes cannot drive the decoder outside the range
+  it was trained on (with the bounded PE and l, every decoder input is then bounded).
+- Decoder: five heads, each an MLP 160 -> w -> w -> out with ReLU; w = 64 for the colour head
+  (48 SH outputs carry most of the detail) and 32 for the offset, scale, rotation and opacity
+  heads (3, 3, 4 and 1 outputs). The heads' first layers are one fused Linear(160, 4 x 32 + 64)
+  (the same function as five layers, one matrix product). These widths keep the numpy decode of
+  the ~60k Gaussians of LOD 0 on two CPU threads within the 150 ms budget (docs/bench_decode.md).
+- Initialisation (so an untrained avatar is a sane surface): hidden layers keep torch's default
+  init; output layers have weights x 0.1 and biases at the starting values below; feature maps
+  start at N(0, 0.1^2).
+    offset   Δμ = offset_unit (1 cm) x raw, bias 0: offsets of ~0.1 mm;
+    scale    log s = base + raw, clamped to [log 0.1 mm, log 5 cm] before exp, where
+             base = log(texel size on the face) = log(metres per UV unit of the face / S);
+    rotation raw quaternion with bias (1, 0, 0, 0), normalised (a norm guard returns identity);
+    opacity  logit bias = logit(init_opacity = 0.2);
+    colour   SH DC bias (init_rgb - 0.5) / C0 (grey or the albedo's mean), higher bands 0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import replace
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..flame.lbs import forward as flame_forward
+from ..flame.lbs_torch import FlameLayer
+from ..flame.model import FlameModel
+from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
+from ..uv.layout import avatar_mesh
+from ..uv.raster import UVRaster, face_texel_scale, position_map
+from .config import HEADS, N_FREQS, QUAT_EPS, AvatarConfig
+from .gaussians import SH_C0, Gaussians, quat_multiply
+from .lod import blend_weights, resolution_for_lod
+
+MAX_LEVELS = 32  # per-resolution tables kept on the device (stage 2 samples every S)
+FEATURE_INIT_STD = 0.1
+OUTPUT_INIT_GAIN = 0.1
+
+
+class _Head(nn.Module):
+    def __init__(self, width: int, n_hidden: int, out: int):
+        super().__init__()
+        self.hidden = nn.ModuleList(nn.Linear(width, width) for _ in range(n_hidden))
+        self.out = nn.Linear(width, out)
+
+    def forward(self, h):
+        for layer in self.hidden:
+            h = F.relu(layer(h))
+        return self.out(h)
+
+
+class Decoder(nn.Module):
+    """Five MLP heads on the per-texel vector; their first layers fused into one."""
+
+    def __init__(self, config: AvatarConfig):
+        super().__init__()
+        self.slices = config.head_slices()
+        self.first = nn.Linear(config.in_dim, config.fused_width)
+        self.heads = nn.ModuleDict({
+            name: _Head(config.head_width(name), config.head_layers - 1, width)
+            for name, width in HEADS.items()})
+
+    def forward(self, x) -> dict[str, torch.Tensor]:
+        h = F.relu(self.first(x))
+        return {name: head(h[:, self.slices[name]]) for name, head in self.heads.items()}
+
+
+class ArchHeadAvatar(nn.Module):
+    def __init__(self, mesh: FlameModel, identity_shape, config: AvatarConfig,
+                 base_model_id: str):
+        super().__init__()
+        if mesh.uv is None:
+            raise ValueError("the avatar mesh needs a UV layout (see uv.layout.avatar_mesh)")
+        self.config, self.mesh, self.base_model_id = config, mesh, base_model_id
+        self.flame = FlameLayer(mesh)
+        self.raster = UVRaster(mesh.uv, mesh.uv_faces)
+        self.face_scale = face_texel_scale(mesh.v_template, mesh.faces, mesh.uv, mesh.uv_faces)
+        self.register_buffer("identity_shape",
+                             torch.as_tensor(np.asarray(identity_shape), dtype=torch.float32))
+        self.register_buffer("freqs", 2.0 ** torch.arange(N_FREQS, dtype=torch.float32),
+                             persistent=False)
+        self.register_buffer("pe_centre", torch.tensor(config.pe_centre, dtype=torch.float32),
+                             persistent=False)
+        c = config.feature_dim
+        self.features = nn.ParameterDict({str(s): nn.Parameter(FEATURE_INIT_STD
+                                                               * torch.randn(c, s, s))
+                                          for s in config.levels})
+        self.mapping = nn.Sequential(nn.Linear(config.mapping_in, config.mapping_hidden),
+                                     nn.ReLU(), nn.Linear(config.mapping_hidden, config.drive_dim))
+        self.decoder = Decoder(config)
+        self._init_outputs()
+        self._levels: OrderedDict = OrderedDict()  # plain data, so the module still pickles
+
+    @classmethod
+    def create(cls, model: FlameModel, identity_shape=None, config: AvatarConfig | None = None,
+               uv_obj=None, cache=None) -> ArchHeadAvatar:
+        """A fresh avatar for `model` (UV layout resolved, teeth added); config defaults to
+        the paper's with the model's expression count, and is completed with the head centre
+        and, when the model has an albedo, its mean colour."""
+        mesh = avatar_mesh(model, uv_obj, cache)
+        shape = np.zeros(model.n_shape) if identity_shape is None else np.asarray(identity_shape)
+        rest = flame_forward(mesh, shape=shape)[0]
+        changes = {"pe_centre": tuple(float(x) for x in (rest.min(0) + rest.max(0)) / 2)}
+        if mesh.albedo is not None:
+            changes["init_rgb"] = tuple(float(x) for x in _mean_albedo(mesh))
+        if config is None:
+            config = AvatarConfig(n_expr=model.n_expr)
+        config = replace(config, **changes)
+        return cls(mesh, shape, config, model.model_id)
+
+    def _init_outputs(self):
+        starts = {"rotation": [1.0, 0.0, 0.0, 0.0],
+                  "opacity": [math.log(self.config.init_opacity / (1 - self.config.init_opacity))]}
+        colour = torch.zeros(HEADS["colour"])
+        colour[:3] = (torch.tensor(self.config.init_rgb) - 0.5) / SH_C0
+        with torch.no_grad():
+            for name, head in self.decoder.heads.items():
+                head.out.weight.mul_(OUTPUT_INIT_GAIN)
+                head.out.bias.zero_()
+                if name in starts:
+                    head.out.bias.copy_(torch.tensor(starts[name]))
+            self.decoder.heads["colour"].out.bias.copy_(colour)
+
+    def level(self, size: int) -> dict[str, torch.Tensor]:
+        """Per-resolution constants on the model's device: texels, face corners, barycentrics,
+        base log scale (texel size on the face). Kept for the MAX_LEVELS most recent sizes."""
+        key = (size, self.identity_shape.device)
+        if key in self._levels:
+            self._levels.move_to_end(key)
+        else:
+            self._levels[key] = self._build_level(*key)
+            if len(self._levels) > MAX_LEVELS:
+                self._levels.popitem(last=False)
+        return self._levels[key]
+
+    def _build_level(self, size: int, device) -> dict[str, torch.Tensor]:
+        table = self.raster.table(size)
+        base = np.log(self.face_scale[table.face] / size)[:, None]
+        return {"texel": torch.from_numpy(table.texel).to(device),
+                "vert_idx": torch.from_numpy(self.mesh.faces[table.face]).to(device),
+                "bary": torch.from_numpy(table.bary.astype(np.float32)).to(device),
+                "base_log_scale": torch.from_numpy(base.astype(np.float32)).to(device)}
+
+    def feature_map(self, size: int) -> torch.Tensor:
+        """(C, size, size): every level resized bicubically to size, blended by eq. 4-5."""
+        weights = blend_weights(self.config.levels, size, self.config.tau)
+        out = 0
+        for w, s in zip(weights, self.config.levels, strict=True):
+            resized = F.interpolate(self.features[str(s)][None], size=(size, size),
+                                    mode="bicubic", align_corners=False)[0]
+            out = out + float(w) * resized
+        return out
+
+    def drive(self, expr=None, jaw=None, eyes=None) -> torch.Tensor:
+        """The driving code (K,) from expression (padded to n_expr), jaw and eyes."""
+        parts = [_code(expr, self.config.n_expr, "expr", self.identity_shape, pad=True),
+                 _code(jaw, 3, "jaw", self.identity_shape),
+                 _code(eyes, 6, "eyes", self.identity_shape)]
+        return torch.tanh(self.mapping(torch.cat(parts)))
+
+    def encode(self, positions: torch.Tensor) -> torch.Tensor:
+        p = positions - self.pe_centre
+        a = (p[:, None, :] * self.freqs[:, None]).reshape(len(p), -1)
+        return torch.cat([p, torch.sin(a), torch.cos(a)], dim=1)
+
+    def forward(self, lod: float = 0.0, *, expr=None, jaw=None, neck=None, eyes=None,
+                rotation=None, translation=None) -> Gaussians:
+        """Gaussians of one frame. Codes are 1-D (or (1, n)); absent ones are zero."""
+        cfg = self.config
+        l, size = resolution_for_lod(lod, cfg.s_max, cfg.s_min)
+        lv = self.level(size)
+        like = self.identity_shape
+        expr_t = None if expr is None else _code(expr, self.mesh.n_expr, "expr", like, True)
+        verts, joints, _ = self.flame.forward_full(
+            shape=self.identity_shape[None], expr=None if expr_t is None else expr_t[None],
+            neck=_code(neck, 3, "neck", like)[None], jaw=_code(jaw, 3, "jaw", like)[None],
+            eyes=_code(eyes, 6, "eyes", like)[None])
+        pos = position_map(verts[0], lv["vert_idx"], lv["bary"])
+        n = len(pos)
+        parts = [self.encode(pos)]
+        if cfg.levels:
+            parts.append(self.feature_map(size).reshape(cfg.feature_dim, -1)[:, lv["texel"]].T)
+        parts += [self.drive(expr, jaw, eyes).expand(n, -1), pos.new_full((n, 1), l)]
+        raw = self.decoder(torch.cat(parts, dim=1))
+
+        offsets = cfg.offset_unit * raw["offset"]
+        rot = _code(rotation, 3, "rotation", like)
+        j0 = joints[0, 0]
+        means = (pos + offsets - j0) @ axis_angle_to_matrix(rot).T + j0
+        means = means + _code(translation, 3, "translation", like)
+        q = raw["rotation"]
+        norm = q.norm(dim=1, keepdim=True)
+        identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=q.dtype, device=q.device)
+        q = torch.where(norm > QUAT_EPS, q / norm.clamp_min(QUAT_EPS), identity)
+        return Gaussians(
+            means=means,
+            log_scales=(lv["base_log_scale"] + raw["scale"]).clamp(cfg.log_scale_min,
+                                                                   cfg.log_scale_max),
+            quats=quat_multiply(axis_angle_to_quaternion(rot)[None], q, stack=torch.stack),
+            opacity_logits=raw["opacity"][:, 0],
+            sh=raw["colour"].reshape(n, -1, 3),
+            offsets=offsets, uv_texel=lv["texel"], resolution=size)
+
+
+def _code(value, width: int, name: str, like: torch.Tensor, pad: bool = False) -> torch.Tensor:
+    """A 1-D code tensor of `width` (zeros if absent; shorter expressions zero-padded)."""
+    if value is None:
+        return like.new_zeros(width)
+    t = torch.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1)
+    if t.numel() > width or (t.numel() < width and not pad):
+        raise ValueError(f"code '{name}': {t.numel()} values, the avatar takes "
+                         f"{'at most ' if pad else ''}{width}")
+    if not torch.isfinite(t).all():
+        raise ValueError(f"code '{name}' contains NaN or Inf")
+    return F.pad(t, (0, width - t.numel())) if pad else t
+
+
+def _mean_albedo(mesh: FlameModel) -> np.ndarray:
+    """Mean albedo colour (0..1) over the texels the layout covers."""
+    h, w = mesh.albedo.shape[:2]
+    size = 64
+    texel = UVRaster(mesh.uv, mesh.uv_faces).table(size).texel
+    rows = ((texel // size + 0.5) * h / size).astype(int)
+    cols = ((texel % size + 0.5) * w / size).astype(int)
+    return mesh.albedo[rows, cols].reshape(-1, 3).mean(0) / 255.0

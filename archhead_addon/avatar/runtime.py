@@ -1,0 +1,238 @@
+"""The avatar in numpy alone (for Blender): reads a checkpoint and decodes frames into Gaussians,
+reproducing `model.ArchHeadAvatar` (see its docstring for the network). Never imports torch.
+
+Per resolution S (`level(S, precision)`, least recently used out first): the UV table, the
+texels' face corners and base log scale, and the feature field resampled to S, blended, and
+pushed through the feature columns of the fused first layer, `W1_feature @ feature`
+(fused width, N). A frame then costs FLAME, the position map, the PE and the MLPs; the driving
+code and l are the same for every texel, so they enter the first layer as one bias column
+(multiplying a constant row appended to the PE).
+
+fp16 path: weights, cached per-S terms, activations and raw outputs are held in half
+precision, every product and sum runs in float32 (numpy has no half-precision BLAS, so this
+saves memory, not time); `precision_error` reports its deviation from the fp32 path.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from ..flame.lbs import forward_full
+from ..flame.model import FlameModel
+from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
+from ..uv.raster import UVRaster, face_texel_scale
+from .bicubic import resize
+from .checkpoint_format import AvatarCheckpoint, checkpoint_mesh, read_checkpoint
+from .config import EYES_DIM, HEADS, JAW_DIM, N_FREQS, PE_DIM, QUAT_EPS
+from .gaussians import Gaussians, quat_multiply
+from .lod import blend_weights, resolution_for_lod
+
+F32, F16 = np.float32, np.float16
+PRECISIONS = ("fp32", "fp16")
+CHUNK = 8192  # texels per pass through the decoder (its widest activations stay in cache)
+
+
+class AvatarRuntime:
+    def __init__(self, ckpt: AvatarCheckpoint, flame=None, path=None, max_cached: int = 4):
+        self.config = cfg = ckpt.config
+        self.mesh = checkpoint_mesh(ckpt, flame, path)
+        self.head = _bake_identity(self.mesh, ckpt.identity_shape)
+        self.raster = UVRaster(self.mesh.uv, self.mesh.uv_faces)
+        self.face_scale = face_texel_scale(self.mesh.v_template, self.mesh.faces, self.mesh.uv,
+                                           self.mesh.uv_faces)
+        self.features = {s: ckpt.params[f"features.{s}"] for s in cfg.levels}
+        self.pe_centre = np.asarray(cfg.pe_centre, F32)
+        self.freqs = (2.0 ** np.arange(N_FREQS)).astype(F32)
+        self._nets = {p: _Network(ckpt.params, cfg, half=p == "fp16") for p in PRECISIONS}
+        self.level = functools.lru_cache(maxsize=max_cached)(self._build_level)
+
+    @classmethod
+    def load(cls, path, flame=None, max_cached: int = 4) -> AvatarRuntime:
+        """`flame`: the FLAME model the avatar was trained on (FlameModel, file, None=built-in)."""
+        return cls(read_checkpoint(path), flame, path, max_cached)
+
+    def resolution(self, lod: float) -> int:
+        return resolution_for_lod(lod, self.config.s_max, self.config.s_min)[1]
+
+    def _build_level(self, size: int, precision: str) -> dict:
+        table = self.raster.table(size)
+        net = self._nets[precision]
+        level = {"texel": table.texel, "vert_idx": self.mesh.faces[table.face],
+                 "bary": table.bary.astype(F32),
+                 "base_log_scale": np.log(self.face_scale[table.face] / size)[None].astype(F32)}
+        if self.config.levels:
+            fmap = sum(F32(w) * resize(self.features[s], size) for w, s in zip(
+                blend_weights(self.config.levels, size, self.config.tau), self.config.levels,
+                strict=True))
+            level["first"] = net.feature_term(fmap.reshape(len(fmap), -1)[:, table.texel])
+        return level
+
+    def decode(self, lod: float = 0.0, *, expr=None, jaw=None, neck=None, eyes=None,
+               rotation=None, translation=None, precision: str = "fp32") -> Gaussians:
+        """Gaussians of one frame (numpy arrays). Codes are 1-D; absent ones are zero."""
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        cfg, net = self.config, self._nets[precision]
+        l, size = resolution_for_lod(lod, cfg.s_max, cfg.s_min)
+        level = self.level(size, precision)
+        expr = None if expr is None else _code(expr, len(np.ravel(expr)), "expr")
+        head = forward_full(self.head, dtype=F32, expr=expr, neck=_code(neck, 3, "neck"),
+                            jaw=_code(jaw, JAW_DIM, "jaw"), eyes=_code(eyes, EYES_DIM, "eyes"))
+        # channel-major (3, N) from here on: every row a contiguous attribute
+        pos = np.einsum("nk,nkc->cn", level["bary"], head.vertices[0][level["vert_idx"]])
+        drive_in = np.concatenate([_code(expr, cfg.n_expr, "expr", pad=True),
+                                   _code(jaw, JAW_DIM, "jaw"), _code(eyes, EYES_DIM, "eyes")])
+        raw = net.decode(self._encode(pos), level.get("first"), net.frame_bias(drive_in, l))
+
+        offsets = F32(cfg.offset_unit) * raw["offset"]
+        rot = _code(rotation, 3, "rotation")
+        j0 = head.joints[0, 0].astype(F32)[:, None]
+        means = axis_angle_to_matrix(rot).astype(F32) @ (pos + offsets - j0)
+        means += j0 + _code(translation, 3, "translation").astype(F32)[:, None]
+        q = raw["rotation"]
+        norm = np.sqrt(np.einsum("in,in->n", q, q))
+        q = np.where(norm > QUAT_EPS, q / np.maximum(norm, QUAT_EPS), F32([[1], [0], [0], [0]]))
+        log_scales = np.clip(level["base_log_scale"] + raw["scale"], cfg.log_scale_min,
+                             cfg.log_scale_max)
+        quats = quat_multiply(axis_angle_to_quaternion(rot).astype(F32), q.T)
+        return Gaussians(means=_rows(means), log_scales=_rows(log_scales), quats=quats,
+                         opacity_logits=raw["opacity"][0], sh=_rows(raw["colour"]).reshape(
+                             pos.shape[1], -1, 3), offsets=_rows(offsets),
+                         uv_texel=level["texel"], resolution=size)
+
+    def _encode(self, pos: np.ndarray) -> np.ndarray:
+        """(PE_DIM + 1, N) float32 from positions (3, N): p, sin(2^k p), cos(2^k p) (k-major,
+        then x, y, z), and a row of ones that carries the first layer's per-frame bias."""
+        n = pos.shape[1]
+        out = np.empty((PE_DIM + 1, n), F32)
+        p = out[:3]
+        np.subtract(pos, self.pe_centre[:, None], out=p)
+        a = (self.freqs[:, None, None] * p[None]).reshape(-1, n)
+        np.sin(a, out=out[3:3 + 3 * N_FREQS])
+        np.cos(a, out=out[3 + 3 * N_FREQS:PE_DIM])
+        out[PE_DIM] = 1.0
+        return out
+
+    def precision_error(self, lod: float = 0.0, **codes) -> dict[str, float]:
+        """Largest absolute difference of every attribute, fp16 path against fp32."""
+        full = self.decode(lod, precision="fp32", **codes)
+        half = self.decode(lod, precision="fp16", **codes)
+        names = ("means", "log_scales", "quats", "opacity_logits", "sh")
+        return {k: float(np.abs(getattr(full, k) - getattr(half, k)).max()) for k in names}
+
+
+class _Network:
+    """The mapping network and the decoder, in torch's (out, in) weight layout.
+
+    Activations are channel-major (channels, texels), the shape in which BLAS runs these
+    long, thin products fastest here, and go through the decoder in chunks of texels so
+    the first layer's wide activations stay in cache. With half=True the weights and every
+    stored intermediate are rounded to float16 (`round`) while products accumulate in float32.
+    """
+
+    def __init__(self, params: dict[str, np.ndarray], cfg, half: bool):
+        self.half = half
+
+        def w(name):
+            return np.ascontiguousarray(self.round(params[name].astype(F32)))
+
+        def b(name):
+            return self.round(params[name].astype(F32))[:, None]
+
+        self.mapping = [(w("mapping.0.weight"), b("mapping.0.bias")[:, 0]),
+                        (w("mapping.2.weight"), b("mapping.2.bias")[:, 0])]
+        first = w("decoder.first.weight")  # (fused width, in_dim): PE | feature | drive | l
+        n_feat = cfg.feature_dim if cfg.levels else 0
+        self.w_pe = first[:, :PE_DIM]
+        self.w_feature = np.ascontiguousarray(first[:, PE_DIM:PE_DIM + n_feat])
+        self.w_drive = first[:, PE_DIM + n_feat:PE_DIM + n_feat + cfg.drive_dim]
+        self.w_lod = first[:, -1]
+        self.b_first = b("decoder.first.bias")[:, 0]
+        self.slices = cfg.head_slices()
+        self.layers = {
+            name: ([(w(f"decoder.heads.{name}.hidden.{i}.weight"),
+                     b(f"decoder.heads.{name}.hidden.{i}.bias"))
+                    for i in range(cfg.head_layers - 1)],
+                   (w(f"decoder.heads.{name}.out.weight"), b(f"decoder.heads.{name}.out.bias")))
+            for name in HEADS}
+
+    def round(self, x: np.ndarray) -> np.ndarray:
+        """x as the path holds it: unchanged (fp32) or rounded to float16 (kept in float32
+        so that BLAS does the products)."""
+        return x.astype(F16).astype(F32) if self.half else x
+
+    def store(self, x: np.ndarray) -> np.ndarray:
+        """A cached array in the path's storage type (half the memory for fp16)."""
+        return x.astype(F16) if self.half else x
+
+    def feature_term(self, feat: np.ndarray) -> np.ndarray:
+        """The per-resolution part of the first layer, W1_feature @ feature (fused, N)."""
+        return self.store(self.w_feature @ self.round(feat))
+
+    def frame_bias(self, drive_in: np.ndarray, lod: float) -> np.ndarray:
+        """The first layer's per-frame constant: W_drive @ drive + l * w_l + b (fused,)."""
+        (w0, b0), (w1, b1) = self.mapping
+        hidden = np.maximum(w0 @ self.round(drive_in.astype(F32)) + b0, 0)
+        drive = self.round(np.tanh(w1 @ self.round(hidden) + b1))
+        return self.round(self.w_drive @ drive + F32(lod) * self.w_lod + self.b_first)
+
+    def decode(self, pe: np.ndarray, first, frame_bias: np.ndarray) -> dict[str, np.ndarray]:
+        """Raw head outputs, (width, N) each, from the PE (PE_DIM + 1, N)."""
+        n = pe.shape[1]
+        w_in = np.hstack([self.w_pe, frame_bias[:, None]])
+        out = {name: np.empty((head[1][0].shape[0], n), F32)
+               for name, head in self.layers.items()}
+        for s in range(0, n, CHUNK):
+            cols = slice(s, min(s + CHUNK, n))
+            h = w_in @ self.round(pe[:, cols])
+            if first is not None:
+                h += first[:, cols]
+            _relu_(h)
+            h = self.round(h)
+            for name, (hidden, (w_out, b_out)) in self.layers.items():
+                x = h[self.slices[name]]
+                for w, b in hidden:
+                    x = w @ x
+                    x += b
+                    _relu_(x)
+                    x = self.round(x)
+                y = out[name][:, cols]
+                np.matmul(w_out, x, out=y)
+                y += b_out
+        return {name: self.round(y) for name, y in out.items()}
+
+
+def _relu_(x: np.ndarray) -> None:
+    """In-place ReLU of a contiguous float32 array, as an integer max on its int32 view: a
+    float with the sign bit set is a negative int32, so max(bits, 0) zeroes exactly the
+    negative values; numpy's integer max runs ~1.5x faster than its NaN-aware float max."""
+    bits = x.view(np.int32)
+    np.maximum(bits, 0, out=bits)
+
+
+def _rows(x: np.ndarray) -> np.ndarray:
+    """(C, N) channel-major -> (N, C) contiguous."""
+    return np.ascontiguousarray(x.T)
+
+
+def _bake_identity(mesh: FlameModel, identity_shape: np.ndarray) -> FlameModel:
+    """The mesh with the identity blendshapes applied to the template and dropped: FLAME
+    computes the same vertices and joints from it, without the identity product per frame."""
+    offsets = mesh.shapedirs[:, :, :len(identity_shape)] @ identity_shape.astype(np.float64)
+    return mesh.replace(v_template=mesh.v_template + offsets, n_shape=0,
+                        shapedirs=mesh.shapedirs[:, :, mesh.n_shape:])
+
+
+def _code(value, width: int, name: str, pad: bool = False) -> np.ndarray:
+    """A 1-D float64 code of `width` (zeros if absent; shorter expressions zero-padded)."""
+    if value is None:
+        return np.zeros(width)
+    v = np.asarray(value, np.float64).reshape(-1)
+    if len(v) > width or (len(v) < width and not pad):
+        raise ValueError(f"code '{name}': {len(v)} values, the avatar takes "
+                         f"{'at most ' if pad else ''}{width}")
+    if not np.isfinite(v).all():
+        raise ValueError(f"code '{name}' contains NaN or Inf")
+    return np.pad(v, (0, width - len(v)))

@@ -1,0 +1,93 @@
+"""LOD -> resolution (eq. 3), the blend weights (eq. 4-5) and the bicubic resampler."""
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from archhead_addon.avatar.bicubic import resize
+from archhead_addon.avatar.lod import blend_weights, resolution_for_lod
+
+
+def test_lod_to_resolution():
+    assert resolution_for_lod(0.0) == (0.0, 256)
+    assert resolution_for_lod(1.0) == (1.0, 64)
+    assert resolution_for_lod(0.5) == (0.5, 160)
+    assert resolution_for_lod(0.37)[1] == 185  # 256 - 0.37 * 192 = 184.96
+    half = 0.5 / 192  # S = 255.5 exactly: rounds up
+    assert resolution_for_lod(half)[1] == 256
+    assert resolution_for_lod(0.25, s_max=128, s_min=32) == (0.25, 104)
+    sizes = [resolution_for_lod(i / 100)[1] for i in range(101)]
+    assert all(a >= b for a, b in zip(sizes, sizes[1:], strict=False))
+
+
+def test_lod_outside_range_is_clamped_with_a_warning():
+    with pytest.warns(UserWarning, match="outside"):
+        assert resolution_for_lod(-0.2) == (0.0, 256)
+    with pytest.warns(UserWarning, match="outside"):
+        assert resolution_for_lod(1.5) == (1.0, 64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        resolution_for_lod(1.0)
+    with pytest.raises(ValueError, match="NaN"):
+        resolution_for_lod(float("nan"))
+
+
+def test_blend_weights_match_a_hand_computation():
+    # S = 200, levels 256, 128, 64, tau = 0.35:
+    #   |ln S_i - ln S| = ln 1.28 = 0.246860, ln 1.5625 = 0.446287, ln 3.125 = 1.139434
+    #   exp(-d / 0.35)  = 0.493953,           0.279401,             0.038561   (sum 0.811915)
+    #   w               = 0.608380,           0.344126,             0.047493
+    w = blend_weights((256, 128, 64), 200, 0.35)
+    np.testing.assert_allclose(w, [0.608380, 0.344126, 0.047493], atol=2e-6)
+    # at a level's own size that level gets the most, yet every weight stays positive:
+    # S = 128: d = ln 2, 0, ln 2 -> w = (e, 1, e) / (1 + 2e), e = exp(-ln 2 / 0.35) = 0.138011
+    e = 0.138011
+    np.testing.assert_allclose(blend_weights((256, 128, 64), 128, 0.35),
+                               [e / (1 + 2 * e), 1 / (1 + 2 * e), e / (1 + 2 * e)], atol=2e-6)
+    assert blend_weights((128,), 77, 0.35).tolist() == [1.0]
+
+
+def test_blend_weights_change_continuously_across_resolutions():
+    sizes = np.arange(64, 256.001, 0.01)
+    w = np.stack([blend_weights((256, 128, 64), s, 0.35) for s in sizes])
+    # |dw/dS| <= 2 / (tau S): a step of 0.01 moves a weight by at most 0.01 * 2 / (0.35 * 64)
+    assert np.abs(np.diff(w, axis=0)).max() < 0.01 * 2 / (0.35 * 64)
+    whole = np.stack([blend_weights((256, 128, 64), s, 0.35) for s in range(64, 257)])
+    assert np.abs(np.diff(whole, axis=0)).max() < 0.1  # neighbouring integer S
+    assert (w > 0).all() and np.allclose(w.sum(1), 1)
+
+
+@pytest.mark.parametrize("src", [64, 128, 256])
+@pytest.mark.parametrize("dst", [64, 97, 128, 185, 255, 256])
+def test_numpy_bicubic_reproduces_torch(src, dst):
+    maps = np.random.default_rng(src + dst).normal(size=(8, src, src)).astype(np.float32)
+    ref = F.interpolate(torch.from_numpy(maps)[None], size=(dst, dst), mode="bicubic",
+                        align_corners=False)[0].numpy()
+    out = resize(maps, dst)
+    assert out.dtype == np.float32 and out.shape == (8, dst, dst)
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+    if src == dst:
+        np.testing.assert_array_equal(out, maps)
+
+
+def test_bicubic_kernel_is_keys_with_a_minus_three_quarters_and_clamped_borders():
+    from archhead_addon.avatar.bicubic import taps
+
+    idx, w = taps(4, 8)  # upsampling x2: source positions -0.25, 0.25, 0.75, ...
+    a = -0.75
+
+    def k(x):
+        x = abs(x)
+        return (a + 2) * x**3 - (a + 3) * x**2 + 1 if x <= 1 else a * (x**3 - 5 * x**2 + 8 * x - 4)
+
+    # interior output 3 sits at source 1.25: taps at 0..3 with t = 0.25
+    assert idx[3].tolist() == [0, 1, 2, 3]
+    np.testing.assert_allclose(w[3], [k(1.25), k(0.25), k(0.75), k(1.75)], atol=1e-6)
+    # output 0 sits at source -0.25: taps -2..1 clamp onto the border sample 0
+    assert idx[0].tolist() == [0, 0, 0, 1]
+    np.testing.assert_allclose(w[0], [k(1.75), k(0.75), k(0.25), k(1.25)], atol=1e-6)
+    assert np.allclose(w.sum(1), 1) and math.isclose(k(0), 1)
