@@ -126,10 +126,10 @@ TileFrame frame_of(const Context& C, int64_t tile) {
                      C.params.width, C.params.height};
 }
 
-void render(Context& C, float* rgb, float* alpha, float* depth) {
-    const int64_t pixels = int64_t(C.params.width) * C.params.height;
-    C.T_final.assign(pixels, 1.0f);
-    C.last.assign(pixels, 0);
+// Runs body(G, frame, first_entry) for every tile in parallel, G holding the tile's splats
+// gathered front to back; dynamic scheduling because tiles differ widely in load.
+template <class Body>
+void for_each_tile(Context& C, Body&& body) {
     const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
 #pragma omp parallel num_threads(thread_count(C.params))
     {
@@ -140,32 +140,30 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
             const TileFrame f = frame_of(C, t);
             gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox,
                         f.oy);
-            composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
-                              C.last.data());
+            body(G, f, s);
         }
     }
+}
+
+void render(Context& C, float* rgb, float* alpha, float* depth) {
+    const int64_t pixels = int64_t(C.params.width) * C.params.height;
+    C.T_final.assign(pixels, 1.0f);
+    C.last.assign(pixels, 0);
+    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t) {
+        composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
+                          C.last.data());
+    });
 }
 
 void backward(Context& C, const float* g_rgb, const float* g_alpha, const float* g_depth,
               float* d_means, float* d_log_scales, float* d_quats, float* d_logits,
               float* d_colors) {
     const int64_t n = C.n;
-    const int threads = thread_count(C.params);
-    const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
     std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
-#pragma omp parallel num_threads(threads)
-    {
-        std::vector<TileSplat> G;
-#pragma omp for schedule(dynamic, 1)
-        for (int64_t t = 0; t < n_tiles; ++t) {
-            const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
-            const TileFrame f = frame_of(C, t);
-            gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox,
-                        f.oy);
-            composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth,
-                               C.T_final.data(), C.last.data(), &entry_grad[s * kEntryGrad]);
-        }
-    }
+    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s) {
+        composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth, C.T_final.data(),
+                           C.last.data(), &entry_grad[s * kEntryGrad]);
+    });
 
     std::memset(d_means, 0, sizeof(float) * 3 * n);
     std::memset(d_log_scales, 0, sizeof(float) * 3 * n);
@@ -173,7 +171,7 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     std::memset(d_logits, 0, sizeof(float) * n);
     std::memset(d_colors, 0, sizeof(float) * 3 * n);
     const int64_t n_visible = int64_t(C.bins.sorted.size());
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
     for (int64_t k = 0; k < n_visible; ++k) {
         const int32_t i = C.bins.sorted[k];
         double acc[kEntryGrad] = {0};
