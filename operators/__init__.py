@@ -2,9 +2,25 @@
 
 import bpy
 
-from . import import_sequence
+from . import (
+    avatar_decode,
+    avatar_load,
+    avatar_props,
+    handlers,
+    import_sequence,
+    lod,
+    ply_export,
+    train_operator,
+)
 
-_CLASSES = (import_sequence.ARCHHEAD_OT_import_sequence,)
+_CLASSES = (import_sequence.ARCHHEAD_OT_import_sequence,
+            avatar_load.ARCHHEAD_OT_load_avatar,
+            avatar_decode.ARCHHEAD_OT_decode_avatar,
+            avatar_decode.ARCHHEAD_OT_cancel_decode,
+            lod.ARCHHEAD_OT_drive_lod,
+            ply_export.ARCHHEAD_OT_export_ply,
+            train_operator.ARCHHEAD_OT_train_avatar,
+            train_operator.ARCHHEAD_OT_cancel_training)
 
 
 def _menu_import(self, context):
@@ -12,13 +28,25 @@ def _menu_import(self, context):
                          text="Tracked FLAME sequence (ArchHead)")
 
 
+def _menu_export(self, context):
+    self.layout.operator(ply_export.ARCHHEAD_OT_export_ply.bl_idname,
+                         text="ArchHead Gaussians (.ply)")
+
+
 def register():
+    avatar_props.register()
     for cls in _CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.TOPBAR_MT_file_import.append(_menu_import)
+    bpy.types.TOPBAR_MT_file_export.append(_menu_export)
+    handlers.register()
 
 
 def unregister():
+    handlers.unregister()
+    train_operator.unregister()
+    bpy.types.TOPBAR_MT_file_export.remove(_menu_export)
     bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
     for cls in reversed(_CLASSES):
         bpy.utils.unregister_class(cls)
+    avatar_props.unregister()

@@ -6,12 +6,14 @@ from .preferences import get_preferences
 
 
 def active_head(context):
-    """The imported head for the active object (the head itself or its armature)."""
+    """The imported head for the active object (the head itself, its armature or avatar)."""
     obj = context.active_object
     if obj is None:
         return None
     if "archhead_model_id" in obj:
         return obj
+    if obj.type == "MESH" and obj.archhead_avatar.checkpoint:
+        return obj.archhead_avatar.head
     name = obj.get("archhead_head")
     return bpy.data.objects.get(name) if name else None
 
@@ -29,6 +31,7 @@ class ARCHHEAD_PT_main(bpy.types.Panel):
         model = (prefs.flame_model_path if prefs else "") or "built-in"
         layout.label(text=f"Model: {bpy.path.basename(model) or model}", icon="MESH_MONKEY")
         layout.operator("archhead.import_sequence", icon="IMPORT")
+        _draw_training(layout, context)
         head = active_head(context)
         if head is None:
             layout.label(text="No imported head selected")
@@ -39,3 +42,59 @@ class ARCHHEAD_PT_main(bpy.types.Panel):
                        f"fps: {head.get('archhead_source_fps', 0):g}")
         box.label(text=f"Format: {head.get('archhead_format', '?')}")
         box.label(text=f"Expressions: {head.get('archhead_n_expr', 0)}")
+        _draw_avatar(layout, context, head)
+
+
+def _draw_avatar(layout, context, head):
+    from ..operators.avatar_decode import progress
+    from ..operators.avatar_load import avatar_of
+    from ..operators.handlers import errors
+
+    box = layout.box()
+    obj = avatar_of(head)
+    if obj is None:
+        box.operator("archhead.load_avatar", icon="SHADING_RENDERED")
+        return
+    settings = obj.archhead_avatar
+    box.label(text=f"{obj.name}: {len(obj.data.vertices):,} Gaussians", icon="POINTCLOUD_DATA")
+    box.label(text=bpy.path.basename(settings.checkpoint), icon="FILE")
+    if obj.session_uid in errors:
+        box.label(text=errors[obj.session_uid], icon="ERROR")
+    box.prop(settings, "lod", slider=True)
+    box.operator("archhead.drive_lod", icon="DRIVER")
+    col = box.column(align=True)
+    col.prop(settings, "decode_frames")
+    if settings.decode_frames == "STRIDE":
+        col.prop(settings, "stride")
+    col.prop(settings, "between")
+    state = progress.get(obj.session_uid)
+    if state is None:
+        box.operator("archhead.decode_avatar", icon="RENDER_ANIMATION")
+    else:
+        row = box.row()
+        row.progress(factor=state["done"] / max(state["total"], 1),
+                     text=f"Decoding {state['done']} / {state['total']}")
+        row.operator("archhead.cancel_decode", text="", icon="CANCEL")
+    col = box.column(align=True)
+    col.prop(settings, "view_dependent")
+    col.prop(settings, "identity")
+    col.prop(settings, "disk_cache")
+    if settings.disk_cache:
+        col.prop(settings, "cache_dir", text="")
+    box.operator("archhead.export_ply", icon="EXPORT")
+    box.operator("archhead.load_avatar", text="Replace Checkpoint", icon="FILE_REFRESH")
+
+
+def _draw_training(layout, context):
+    from ..operators.train_operator import current_run
+
+    run = current_run()
+    if run is None:
+        layout.operator("archhead.train_avatar", icon="EXPERIMENTAL")
+        return
+    box = layout.box()
+    box.label(text="Training", icon="EXPERIMENTAL")
+    box.progress(factor=run.fraction, text=run.summary())
+    box.label(text=run.loss_text())
+    row = box.row()
+    row.operator("archhead.cancel_training", icon="CANCEL")

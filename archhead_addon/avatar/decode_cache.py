@@ -1,0 +1,128 @@
+"""Decoded frames kept for playback: in memory (least recently used out, by bytes) and,
+optionally, on disk as one npz per frame (written atomically, so render-farm machines can
+share a cache folder and a crash never leaves a torn file).
+
+A frame is named by `frame_key`: the avatar (checkpoint contents, identity, precision), the
+codes and the level of detail, never the frame number, so an edit to any code makes a new
+key and two frames with the same codes share one entry.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import zipfile
+from collections import OrderedDict
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import save_npz_atomic
+from .gaussians import Gaussians
+
+MIN_OPACITY = 1.0 / 255.0  # 3DGS skips samples below this alpha; such Gaussians are left out
+_LOGIT_MIN = float(np.log(MIN_OPACITY / (1.0 - MIN_OPACITY)))
+
+
+@dataclass
+class SplatFrame:
+    """One frame's visible Gaussians (float32, 3DGS storage conventions, FLAME space)."""
+
+    means: np.ndarray  # (N,3)
+    log_scales: np.ndarray  # (N,3)
+    quats: np.ndarray  # (N,4) w, x, y, z, unit
+    opacity_logits: np.ndarray  # (N,)
+    sh: np.ndarray  # (N,16,3), DC first
+    resolution: int  # the UV resolution S it was decoded at
+
+    @classmethod
+    def from_gaussians(cls, g: Gaussians) -> SplatFrame:
+        keep = np.asarray(g.opacity_logits) >= _LOGIT_MIN
+        return cls(*(np.ascontiguousarray(np.asarray(a)[keep], np.float32)
+                     for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)),
+                   resolution=int(g.resolution))
+
+    def __len__(self) -> int:
+        return len(self.means)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in self._arrays().values())
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "resolution"}
+
+
+def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
+    """The cache name of one decoded frame."""
+    h = hashlib.sha1(f"{avatar_digest}/{codes_digest}".encode())
+    h.update(np.float64(lod).tobytes())
+    return h.hexdigest()[:24]
+
+
+def file_digest(path) -> str:
+    """sha1 of a file's contents (a checkpoint's identity across machines and renames)."""
+    h = hashlib.sha1()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+class MemoryCache:
+    """Least recently used frames out once their bytes pass the budget."""
+
+    def __init__(self, max_bytes: int):
+        self.max_bytes = int(max_bytes)
+        self._frames: OrderedDict[str, SplatFrame] = OrderedDict()
+        self.nbytes = 0
+
+    def get(self, key: str) -> SplatFrame | None:
+        frame = self._frames.get(key)
+        if frame is not None:
+            self._frames.move_to_end(key)
+        return frame
+
+    def put(self, key: str, frame: SplatFrame) -> None:
+        if key in self._frames:
+            self.nbytes -= self._frames.pop(key).nbytes
+        self._frames[key] = frame
+        self.nbytes += frame.nbytes
+        while self.nbytes > self.max_bytes and len(self._frames) > 1:
+            self.nbytes -= self._frames.popitem(last=False)[1].nbytes
+
+    def __contains__(self, key: str) -> bool:
+        return key in self._frames
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def clear(self) -> None:
+        self._frames.clear()
+        self.nbytes = 0
+
+
+class DiskCache:
+    """One `<key>.npz` per frame in a folder; unreadable files count as absent."""
+
+    def __init__(self, folder):
+        self.folder = Path(folder)
+
+    def path(self, key: str) -> Path:
+        return self.folder / f"{key}.npz"
+
+    def get(self, key: str) -> SplatFrame | None:
+        path = self.path(key)
+        if not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {name: z[name] for name in
+                          ("means", "log_scales", "quats", "opacity_logits", "sh")}
+                return SplatFrame(**arrays, resolution=int(z["resolution"]))
+        except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError):
+            return None
+
+    def put(self, key: str, frame: SplatFrame) -> None:
+        save_npz_atomic(self.path(key), **frame._arrays(),
+                        resolution=np.int64(frame.resolution))

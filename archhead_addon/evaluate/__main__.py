@@ -1,0 +1,122 @@
+"""Evaluate a trained avatar on its test frames (the last 10 % of DIR's frames):
+
+    python -m archhead_addon.evaluate --avatar RUN/avatar.npz --data DIR --out EVAL
+        [--lods 0,0.25,0.5,0.75,1] [--precisions fp32,fp16] [--resolution N] [--flame FILE]
+        [--drive SEQ [--drive-lod L] [--drive-frames N]]
+
+Writes EVAL/metrics.csv and EVAL/metrics.md (L1, PSNR, SSIM, ST-LPIPS, Gaussian count and
+render milliseconds per LOD and precision, and the LOD 1 : LOD 0 ratios beside the paper's),
+EVAL/error_vs_time.png, and EVAL/lods.png (the first test frame: truth, then each LOD).
+--drive renders the avatar driven by another tracked sequence (any supported format) into
+EVAL/reenact/ (cross-identity reenactment). The resolution defaults to the training run's
+(RUN/config.json). Exit status 2: bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import warnings
+from pathlib import Path
+
+from ..io.errors import InputError, InputWarning
+
+
+def _lods(text: str) -> list[float]:
+    lods = [float(x) for x in text.split(",") if x.strip()]
+    if not lods or any(not 0 <= lod <= 1 for lod in lods):
+        raise argparse.ArgumentTypeError(f"levels of detail in [0, 1], got {text!r}")
+    return lods
+
+
+def _precisions(text: str) -> list[str]:
+    names = text.split(",")
+    if not names or any(n not in ("fp32", "fp16") for n in names):
+        raise argparse.ArgumentTypeError(f"fp32 and / or fp16, got {text!r}")
+    return names
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m archhead_addon.evaluate",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--avatar", type=Path, required=True, help="avatar checkpoint (.npz)")
+    p.add_argument("--data", type=Path, required=True, help="the data folder it trained on")
+    p.add_argument("--out", type=Path, required=True, help="folder for tables and images")
+    p.add_argument("--lods", type=_lods, default=[0.0, 0.25, 0.5, 0.75, 1.0])
+    p.add_argument("--precisions", type=_precisions, default=["fp32", "fp16"])
+    p.add_argument("--resolution", type=int, help="image size (longer side); default: the "
+                   "training run's")
+    p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
+    p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")
+    p.add_argument("--drive-lod", type=float, default=0.0)
+    p.add_argument("--drive-frames", type=int, help="render only the first N driving frames")
+    return p.parse_args(argv)
+
+
+def run_resolution(args) -> int:
+    if args.resolution is not None:
+        return args.resolution
+    config = args.avatar.parent / "config.json"
+    if not config.is_file():
+        raise InputError(args.avatar.parent, None, "no config.json of a training run here: "
+                         "pass --resolution")
+    return int(json.loads(config.read_text())["resolution"])
+
+
+def evaluate(args) -> int:
+    import numpy as np
+
+    from ..avatar.runtime import AvatarRuntime
+    from ..flame.model import load_model
+    from ..sequences import read_sequence
+    from ..train.dataset import FrameDataset
+    from ..train.perceptual import ShiftTolerantLPIPS
+    from .lods import evaluate_lods
+    from .reenact import reenact, to_png
+    from .report import plot_error_vs_time, write_tables
+
+    model = load_model(args.flame)
+    runtime = AvatarRuntime.load(args.avatar, model)
+    test = FrameDataset(args.data, run_resolution(args), model, split="test")
+    frames = [test[i] for i in range(len(test))]
+    first = {}
+
+    def keep_first(lod, precision, index, rgb):
+        if index == 0 and precision == args.precisions[0]:
+            first[lod] = rgb
+
+    results = evaluate_lods(runtime, frames, test.size, test.background,
+                            ShiftTolerantLPIPS(), args.lods, args.precisions, keep_first)
+    title = (f"{args.avatar.name}: {len(frames)} test frames of {args.data.name}, "
+             f"{test.size[1]}x{test.size[0]} px")
+    write_tables(args.out, results, title)
+    plot_error_vs_time(args.out / "error_vs_time.png", results, title)
+    to_png(args.out / "lods.png", np.concatenate([frames[0]["image"], *first.values()], 1))
+    print((args.out / "metrics.md").read_text())
+    if args.drive is not None:
+        driver = read_sequence(args.drive)
+        paths = reenact(runtime, driver, args.out / "reenact", test.size, test.background,
+                        (frames[0]["K"], frames[0]["w2c"]), args.drive_lod, args.drive_frames)
+        print(f"reenactment: {len(paths)} frames driven by {args.drive} in "
+              f"{args.out / 'reenact'}")
+    return 0
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train/__main__.py
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputWarning)
+        warnings.showwarning = lambda message, *rest: print(f"warning: {message}",
+                                                            file=sys.stderr)
+        try:
+            return evaluate(args)
+        except InputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""Image metrics of the paper's tables: L1, PSNR, SSIM (and ST-LPIPS, train/perceptual.py).
+
+Images are torch tensors (H,W,3) in [0, 1]. SSIM follows Wang et al. (2004): an 11x11 Gaussian
+window of sigma 1.5, C1 = (0.01)², C2 = (0.03)² for a data range of 1, the local statistics on
+the 'valid' windows only (no padding, as the reference MATLAB code), averaged over windows and
+channels.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+SSIM_WINDOW, SSIM_SIGMA = 11, 1.5
+SSIM_C1, SSIM_C2 = 0.01**2, 0.03**2
+
+
+def l1(pred: torch.Tensor, target: torch.Tensor) -> float:
+    return float((pred - target).abs().mean())
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    """10 log10(1 / MSE) in dB (infinite for identical images)."""
+    mse = float((pred.double() - target.double()).square().mean())
+    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
+    """(size, size) float64, sums to 1."""
+    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
+    g = torch.exp(-x.square() / (2 * sigma**2))
+    g = g / g.sum()
+    return g[:, None] * g[None, :]
+
+
+def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
+    if pred.shape != target.shape or pred.ndim != 3:
+        raise ValueError(f"expected two (H,W,C) images, got {tuple(pred.shape)} and "
+                         f"{tuple(target.shape)}")
+    if min(pred.shape[:2]) < SSIM_WINDOW:
+        raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW} px a side")
+    x, y = (t.double().permute(2, 0, 1)[:, None] for t in (pred, target))  # (C,1,H,W)
+    w = gaussian_window()[None, None]
+
+    def blur(t):
+        return F.conv2d(t, w)
+
+    mx, my = blur(x), blur(y)
+    vx, vy, cxy = blur(x * x) - mx**2, blur(y * y) - my**2, blur(x * y) - mx * my
+    ssim_map = ((2 * mx * my + SSIM_C1) * (2 * cxy + SSIM_C2)
+                / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2)))
+    return float(ssim_map.mean())

@@ -1,0 +1,1 @@
+"""Gaussians out of ArchHead: the standard 3DGS PLY, and the change of space for it."""

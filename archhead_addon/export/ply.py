@@ -1,0 +1,106 @@
+"""The standard 3DGS PLY (as written by the original implementation, read by splat viewers).
+
+One `vertex` element, binary little endian, float32 properties in this order:
+  x y z            mean
+  nx ny nz         zeros (3DGS writes them; viewers ignore them)
+  f_dc_0..2        SH DC coefficients, r g b
+  f_rest_0..44     higher SH bands channel-major: f_rest[c * 15 + k] = sh[:, 1 + k, c]
+  opacity          logit
+  scale_0..2       log standard deviations
+  rot_0..3         quaternion w, x, y, z
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import atomic_path
+from ..io.errors import InputError
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "<i2",
+              "int16": "<i2", "ushort": "<u2", "uint16": "<u2", "int": "<i4", "int32": "<i4",
+              "uint": "<u4", "uint32": "<u4", "float": "<f4", "float32": "<f4",
+              "double": "<f8", "float64": "<f8"}
+
+
+def property_names(n_rest: int) -> list[str]:
+    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(n_rest)] + ["opacity"]
+            + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
+
+
+def gaussians_to_rows(means, log_scales, quats, opacity_logits, sh) -> np.ndarray:
+    """(N, 17 + 3 (K - 1)) float32 rows in `property_names` order; sh is (N,K,3)."""
+    sh = np.asarray(sh, np.float32)
+    n = len(sh)
+    rest = np.swapaxes(sh[:, 1:], 1, 2).reshape(n, -1)  # (N, 3, K-1): channel-major
+    return np.concatenate([np.asarray(means, np.float32), np.zeros((n, 3), np.float32),
+                           sh[:, 0], rest, np.asarray(opacity_logits, np.float32)[:, None],
+                           np.asarray(log_scales, np.float32), np.asarray(quats, np.float32)],
+                          axis=1)
+
+
+def write_ply(path, means, log_scales, quats, opacity_logits, sh) -> None:
+    """Write atomically (a reader never sees a torn file)."""
+    rows = gaussians_to_rows(means, log_scales, quats, opacity_logits, sh)
+    names = property_names(rows.shape[1] - 17)
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(rows)}"]
+    header += [f"property float {name}" for name in names] + ["end_header"]
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(np.ascontiguousarray(rows, "<f4").tobytes())
+
+
+def read_ply(path) -> dict[str, np.ndarray]:
+    """The vertex properties of a binary little-endian PLY, by name (any scalar types)."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        data = f.read()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise InputError(path, None, "not a PLY file (no 'ply' magic or no end_header)")
+    body = data.index(b"\n", end) + 1
+    lines = data[:body].decode("ascii", "replace").splitlines()
+    if "format binary_little_endian 1.0" not in lines:
+        raise InputError(path, "format", "only binary_little_endian PLY files are read")
+    fields, count, element = [], None, None
+    for line in lines:
+        tokens = line.split()
+        if tokens[:1] == ["element"]:
+            element = tokens[1]
+            if element == "vertex":
+                count = int(tokens[2])
+            elif count is None:
+                raise InputError(path, f"element {element}", "the vertex element must come "
+                                 "first")
+            else:
+                break  # elements after the vertices are not read
+        elif tokens[:1] == ["property"] and element == "vertex":
+            if tokens[1] == "list" or tokens[1] not in _PLY_TYPES:
+                raise InputError(path, tokens[-1], f"unsupported property type {tokens[1]!r}")
+            fields.append((tokens[2], _PLY_TYPES[tokens[1]]))
+    if count is None:
+        raise InputError(path, "element vertex", "missing")
+    dtype = np.dtype(fields)
+    if len(data) - body < count * dtype.itemsize:
+        raise InputError(path, "vertex", f"truncated: {count} vertices need "
+                         f"{count * dtype.itemsize} bytes, {len(data) - body} present")
+    table = np.frombuffer(data, dtype, count, body)
+    return {name: table[name].copy() for name, _ in fields}
+
+
+def rows_to_gaussians(props: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """`read_ply` output back to means, log_scales, quats, opacity_logits, sh (N,K,3)."""
+    n_rest = len([k for k in props if re.fullmatch(r"f_rest_\d+", k)])
+
+    def stack(names):
+        return np.stack([props[k] for k in names], axis=1)
+
+    dc = stack([f"f_dc_{i}" for i in range(3)])
+    rest = stack([f"f_rest_{i}" for i in range(n_rest)]).reshape(len(dc), 3, n_rest // 3)
+    return {"means": stack("xyz"), "log_scales": stack([f"scale_{i}" for i in range(3)]),
+            "quats": stack([f"rot_{i}" for i in range(4)]), "opacity_logits": props["opacity"],
+            "sh": np.concatenate([dc[:, None], np.swapaxes(rest, 1, 2)], axis=1)}

@@ -1,0 +1,145 @@
+"""Train an avatar: python -m archhead_addon.train --data DIR --out DIR [--config F]
+[--resume] [--progress-json] [--flame FILE]
+
+DIR holds frames/, optional masks/ and parts/, and tracking.npz (train/dataset.py). The run
+writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume) and OUT/config.json, every
+`checkpoint_every` steps and at the end. Ctrl-C (SIGINT) or SIGTERM finishes the current step,
+saves and exits with status 130; a second Ctrl-C stops at once. Exit status 2: bad input.
+
+torch loads only after the arguments are read, with OMP_WAIT_POLICY=PASSIVE unless set: on
+a busy machine OpenMP threads that spin while they wait for each other made small operations
+twenty times slower (docs/training.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..io.errors import InputError, InputWarning
+from .config import PRESETS, TrainConfig
+from .progress import Progress
+
+if TYPE_CHECKING:
+    from .loop import Trainer
+
+INTERRUPTED = 130  # the shell's status for a run stopped by SIGINT
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m archhead_addon.train",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--data", type=Path, required=True, help="training data folder")
+    p.add_argument("--out", type=Path, required=True, help="output folder of the run")
+    p.add_argument("--config", default="cpu", help=f"config file, or a preset: "
+                   f"{', '.join(PRESETS)} (default: cpu); ignored with --resume, which "
+                   "uses the run's own")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from "
+                   "its last checkpoint")
+    p.add_argument("--progress-json", action="store_true", help="one JSON object per line on "
+                   "stdout (events: start, step, checkpoint, done, interrupted, error)")
+    p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
+    return p.parse_args(argv)
+
+
+class StopFlag:
+    """Set by the first SIGINT / SIGTERM; the second SIGINT raises KeyboardInterrupt."""
+
+    def __init__(self):
+        self.set = False
+
+    def __call__(self) -> bool:
+        return self.set
+
+    def install(self) -> dict:
+        """Install the handlers; returns the previous ones (for `restore`)."""
+        def handler(signum, frame):
+            if self.set and signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            self.set = True
+
+        return {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    @staticmethod
+    def restore(previous: dict) -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def setup(args, progress: Progress) -> Trainer:
+    """The trainer of a new or resumed run; bad input raises InputError or ValueError."""
+    import torch
+
+    from ..flame.model import load_model
+    from . import loop
+    from .dataset import FrameDataset
+
+    state_path = args.out / loop.STATE_FILE
+    if args.resume and not state_path.is_file():
+        raise InputError(args.out, None, f"nothing to resume: no {loop.STATE_FILE} here")
+    if not args.resume and state_path.exists():
+        raise InputError(args.out, None, "holds a training run: pass --resume to continue "
+                         "it, or choose another --out")
+    state = loop.load_state(state_path) if args.resume else None
+    config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    device = loop.resolve_device(config.device)
+    model = load_model(args.flame)
+    dataset = FrameDataset(args.data, config.resolution, model, split="train")
+    frames = loop.frames_on_device(dataset, device)
+    if state is not None:
+        trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background,
+                                      device)
+    else:
+        trainer = loop.Trainer.create(config, frames, model, dataset.sequence.shape[0],
+                                      args.out, dataset.background, device)
+    progress.event("start", step=trainer.step, total=config.total_steps, device=str(device),
+                   renderer=trainer.backend, frames=len(frames), resolution=list(dataset.size))
+    progress.message(f"training on {len(frames)} frames of {dataset.size[1]}x"
+                     f"{dataset.size[0]} px, {device}, renderer {trainer.backend}"
+                     + (f", resumed at step {trainer.step}" if state is not None else ""))
+    return trainer
+
+
+def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
+    from .loop import AVATAR_FILE
+
+    finished = trainer.run(progress.step, progress.checkpoint, stop)
+    kind = "done" if finished else "interrupted"
+    avatar = trainer.out_dir / AVATAR_FILE
+    total = trainer.config.total_steps
+    progress.event(kind, step=trainer.step, total=total, avatar=str(avatar),
+                   elapsed_seconds=round(trainer.elapsed, 1))
+    progress.message(f"{kind} at step {trainer.step}/{total}; avatar {avatar}")
+    return 0 if finished else INTERRUPTED
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads OpenMP
+    progress = Progress(args.progress_json)
+    stop = StopFlag()
+    previous = stop.install()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", InputWarning)
+            warnings.showwarning = lambda message, *rest: progress.message(f"warning: {message}")
+            try:
+                trainer = setup(args, progress)
+            except (InputError, ValueError) as exc:
+                progress.event("error", message=str(exc))
+                progress.message(f"error: {exc}")
+                return 2
+            return train(trainer, progress, stop)
+    finally:
+        StopFlag.restore(previous)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

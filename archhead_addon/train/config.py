@@ -1,0 +1,122 @@
+"""Training configuration: one JSON file (configs/*.json) read into `TrainConfig`.
+
+    {"resolution": 256, "stage1_steps": 15000, "stage2_steps": 30000, "lods_per_step": 5,
+     "lr": {"features": ..., "mapping": ..., "decoder": ...}, "lr_final_ratio": 0.1,
+     "loss": {"parts": 20, "lpips": 0.05, ...}, "avatar": {"s_max": 256, ...}, ...}
+
+Every key is optional; unknown keys are errors. "avatar" holds AvatarConfig fields (the
+model's size: UV resolutions, feature-field levels, widths). torch-free, so the command line
+reads it before torch loads.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+from ..avatar.config import AvatarConfig
+
+CONFIG_DIR = Path(__file__).parent / "configs"
+PRESETS = ("cpu", "gpu_paper")
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """The weights of eq. 6-7 (the paper's values) and the Huber threshold (losses.py)."""
+
+    parts: float = 20.0
+    lpips: float = 0.05
+    offset: float = 0.001
+    scale: float = 0.5
+    huber_delta: float = 0.1
+
+
+@dataclass(frozen=True)
+class LearningRates:
+    features: float = 5e-3
+    mapping: float = 1e-3
+    decoder: float = 2e-3
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    resolution: int = 256  # training images are resized to this many pixels a side
+    stage1_steps: int = 1000  # LOD 0, everything trains
+    stage2_steps: int = 500  # several LODs per step, mapping network frozen
+    lods_per_step: int = 5
+    lr: LearningRates = field(default_factory=LearningRates)
+    lr_final_ratio: float = 0.1  # each stage decays its rates exponentially to this fraction
+    loss: LossWeights = field(default_factory=LossWeights)
+    # The perceptual term on every k-th step only, weighted k x λ_lpips there (an unbiased
+    # estimate of the full term): ST-LPIPS costs more than the avatar on the CPU.
+    lpips_every: int = 1
+    avatar: dict = field(default_factory=dict)  # AvatarConfig fields
+    checkpoint_every: int = 100  # steps
+    seed: int = 0
+    threads: int = 0  # CPU threads of torch and the splat kernel; 0 = their default (all)
+    device: str = "auto"  # "auto" (CUDA when present), "cpu" or "cuda"
+
+    def __post_init__(self):
+        if self.resolution < 32:
+            raise ValueError(f"resolution must be >= 32 px (ST-LPIPS), got {self.resolution}")
+        if self.stage1_steps < 0 or self.stage2_steps < 0 or self.total_steps == 0:
+            raise ValueError("step counts must be >= 0 and not both 0")
+        if min(self.lods_per_step, self.checkpoint_every, self.lpips_every) < 1:
+            raise ValueError("lods_per_step, checkpoint_every and lpips_every must be >= 1")
+        if not 0 < self.lr_final_ratio <= 1:
+            raise ValueError(f"lr_final_ratio must be in (0, 1], got {self.lr_final_ratio}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
+        self.avatar_config(n_expr=1)  # reject unknown or invalid avatar fields now
+
+    @property
+    def total_steps(self) -> int:
+        return self.stage1_steps + self.stage2_steps
+
+    def stage(self, step: int) -> int:
+        """1 or 2 for a step counted from 0."""
+        return 1 if step < self.stage1_steps else 2
+
+    def avatar_config(self, n_expr: int) -> AvatarConfig:
+        known = {f.name for f in fields(AvatarConfig)}
+        unknown = sorted(set(self.avatar) - known)
+        if unknown:
+            raise ValueError(f"unknown avatar config fields {unknown}")
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in self.avatar.items()}
+        return AvatarConfig(**{"n_expr": n_expr, **values})
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TrainConfig:
+        if not isinstance(data, dict):
+            raise ValueError("the training config is not a JSON object")
+        data = dict(data)
+        for key, kind in (("lr", LearningRates), ("loss", LossWeights)):
+            if key in data:
+                data[key] = _nested(kind, data[key], key)
+        return _nested(cls, data, "config")
+
+    @classmethod
+    def load(cls, path) -> TrainConfig:
+        """A config file, or a preset name ('cpu', 'gpu_paper'). ValueError names the file."""
+        path = CONFIG_DIR / f"{path}.json" if str(path) in PRESETS else Path(path)
+        try:
+            return cls.from_dict(json.loads(Path(path).read_text()))
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path}: {exc}") from exc
+
+
+def _nested(kind, data, name: str):
+    if not isinstance(data, dict):
+        raise ValueError(f"'{name}' must be a JSON object")
+    known = {f.name for f in fields(kind)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"unknown keys in '{name}': {unknown}")
+    try:
+        return kind(**data)
+    except TypeError as exc:
+        raise ValueError(f"'{name}': {exc}") from exc

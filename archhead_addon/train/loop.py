@@ -1,0 +1,260 @@
+"""The two-stage training of the paper (sections 3.5 and 4.2), with checkpoints and resume.
+
+Stage 1 (`stage1_steps`): every step renders one training frame at LOD 0 and trains the
+feature field, the mapping network and the decoder. Stage 2 (`stage2_steps`): every step
+renders the same frame at `lods_per_step` levels drawn in [0, 1] (stratified: one in each of
+n equal bins, so every step spans the range), accumulates their gradients (each loss / n) and
+updates the feature field and the decoder; the mapping network is frozen. The learning rates
+decay exponentially over the whole run to `lr_final_ratio` of their start.
+
+Randomness is a function of (seed, step) alone: the frame order (a permutation per epoch)
+and the stage-2 levels. The step is therefore the whole random state, and a resumed run takes
+the same steps as one that was never stopped.
+
+Files in the output folder, each replaced atomically:
+  avatar.npz       the avatar checkpoint (numpy-readable; avatar/checkpoint_format.py)
+  train_state.pt   step, elapsed time, config, model and optimizer state; torch.save of
+                   tensors and plain types only, read back with torch.load(weights_only=True)
+  config.json      the training config of the run
+A checkpoint writes train_state.pt first and avatar.npz second. Resume reads train_state.pt
+alone, so a kill between the two writes loses nothing: the state is whole either way.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pickle
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..avatar.checkpoint import save_avatar
+from ..avatar.config import AvatarConfig
+from ..avatar.model import ArchHeadAvatar
+from ..io.atomic import atomic_path, write_bytes_atomic
+from ..splat import rasterization
+from ..splat.rendering import select_backend
+from ..uv.layout import avatar_mesh
+from .config import TrainConfig
+from .losses import TrainingLoss
+from .perceptual import ShiftTolerantLPIPS
+from .progress import StepReport
+
+AVATAR_FILE, STATE_FILE, CONFIG_FILE = "avatar.npz", "train_state.pt", "config.json"
+STATE_FORMAT, STATE_VERSION = "archhead-train-state", 1
+EMA = 0.9  # smoothing of the seconds-per-step estimate
+
+
+@dataclass
+class Frame:
+    """One training frame as tensors on the training device."""
+
+    image: torch.Tensor  # (H,W,3) in [0, 1], composited over the background
+    parts: torch.Tensor  # (H,W) eye / mouth mask B
+    codes: dict  # expr, jaw, neck, eyes, rotation, translation (1-D tensors)
+    K: np.ndarray  # (3,3) at the training resolution
+    w2c: np.ndarray  # (4,4)
+
+
+def frames_on_device(dataset, device: torch.device) -> list[Frame]:
+    """The frames of a `train.dataset.FrameDataset` as tensors (codes without the identity,
+    which the avatar holds)."""
+    frames = []
+    for i in range(len(dataset)):
+        item = dataset[i]
+        codes = {k: torch.as_tensor(v, device=device) for k, v in item["codes"].items()
+                 if k != "shape"}
+        frames.append(Frame(torch.as_tensor(item["image"], device=device),
+                            torch.as_tensor(item["parts"], device=device), codes,
+                            item["K"].astype(np.float64), item["w2c"].astype(np.float64)))
+    return frames
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' asked for, but torch sees no CUDA device")
+    return torch.device(name)
+
+
+def stage2_cost_ratio(s_max: int, s_min: int) -> float:
+    """Mean Gaussian count of a level drawn uniformly in [0, 1], as a fraction of LOD 0's:
+    the integral of (1 - (1 - r) l)^2 over l, r = s_min / s_max. Scales the first estimate
+    of a stage-2 step's time from stage 1's."""
+    r = s_min / s_max
+    return (1 + r + r * r) / 3
+
+
+class Trainer:
+    def __init__(self, config: TrainConfig, frames: list[Frame], avatar: ArchHeadAvatar,
+                 out_dir, background, device: torch.device):
+        if not frames:
+            raise ValueError("no training frames")
+        self.config, self.frames, self.avatar = config, frames, avatar
+        self.out_dir, self.device = Path(out_dir), device
+        self.background = torch.as_tensor(background, dtype=torch.float32)
+        perceptual = ShiftTolerantLPIPS().to(device) if config.loss.lpips > 0 else None
+        self.loss = TrainingLoss(config.loss, perceptual)
+        groups = {"features": list(avatar.features.parameters()),
+                  "mapping": list(avatar.mapping.parameters()),
+                  "decoder": list(avatar.decoder.parameters())}
+        self.optimizer = torch.optim.Adam(
+            [{"params": p, "name": k, "lr": getattr(config.lr, k)} for k, p in groups.items()])
+        self.step = 0  # steps done
+        self.elapsed = 0.0  # training seconds over every session of the run
+        self.backend = select_backend("auto", device)
+        self._rate = {1: None, 2: None}  # smoothed seconds per step, by stage
+
+    @classmethod
+    def create(cls, config: TrainConfig, frames, model, identity_shape, out_dir, background,
+               device) -> Trainer:
+        torch.manual_seed(config.seed)
+        avatar = ArchHeadAvatar.create(model, identity_shape, config.avatar_config(model.n_expr))
+        return cls(config, frames, avatar.to(device), out_dir, background, device)
+
+    @classmethod
+    def resume(cls, state: dict, out_dir, frames, model, background, device) -> Trainer:
+        """The run as its last checkpoint (`load_state`) left it."""
+        avatar = ArchHeadAvatar(avatar_mesh(model), state["model"]["identity_shape"].numpy(),
+                                AvatarConfig.from_json(state["avatar_config"]), model.model_id)
+        avatar.load_state_dict(state["model"], strict=True)
+        trainer = cls(state_config(state), frames, avatar.to(device), out_dir, background,
+                      device)
+        trainer.optimizer.load_state_dict(state["optimizer"])
+        trainer.step, trainer.elapsed = int(state["step"]), float(state["elapsed"])
+        return trainer
+
+    # -- schedule -------------------------------------------------------------------------
+
+    def frame_index(self, step: int) -> int:
+        n = len(self.frames)
+        epoch, k = divmod(step, n)
+        return int(np.random.default_rng([self.config.seed, epoch]).permutation(n)[k])
+
+    def lods(self, step: int) -> list[float]:
+        if self.config.stage(step) == 1:
+            return [0.0]
+        n = self.config.lods_per_step
+        u = np.random.default_rng([self.config.seed, 1 << 20, step]).random(n)
+        return [float((k + u[k]) / n) for k in range(n)]
+
+    def learning_rate_factor(self, step: int) -> float:
+        return self.config.lr_final_ratio ** (step / self.config.total_steps)
+
+    # -- one step -------------------------------------------------------------------------
+
+    def render(self, frame: Frame, lod: float):
+        """(rgb (H,W,3), Gaussians) of a frame at level `lod`."""
+        g = self.avatar(lod, **frame.codes)
+        h, w = frame.image.shape[:2]
+        out = rasterization(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, frame.w2c,
+                            frame.K, w, h, background=self.background,
+                            num_threads=self.config.threads)
+        return out.rgb, g
+
+    def train_step(self) -> StepReport:
+        step, cfg = self.step, self.config
+        stage = cfg.stage(step)
+        self.avatar.mapping.requires_grad_(stage == 1)
+        for group in self.optimizer.param_groups:
+            group["lr"] = getattr(cfg.lr, group["name"]) * self.learning_rate_factor(step)
+        frame = self.frames[self.frame_index(step)]
+        lods = self.lods(step)
+        start = time.perf_counter()
+        self.optimizer.zero_grad(set_to_none=True)
+        sums: dict[str, float] = {}
+        k = cfg.lpips_every
+        lpips_weight = cfg.loss.lpips * k if step % k == 0 else 0.0
+        for lod in lods:
+            rgb, g = self.render(frame, lod)
+            total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight)
+            (total / len(lods)).backward()
+            for k, v in terms.items():
+                sums[k] = sums.get(k, 0.0) + v / len(lods)
+        self.optimizer.step()
+        seconds = time.perf_counter() - start
+        self.step += 1
+        self.elapsed += seconds
+        rate = self._rate[stage]
+        self._rate[stage] = seconds if rate is None else EMA * rate + (1 - EMA) * seconds
+        return StepReport(stage, self.step, cfg.total_steps, sums, lods, self._rate[stage],
+                          self.eta(), self.elapsed)
+
+    def eta(self) -> float:
+        cfg = self.config
+        left1 = max(cfg.stage1_steps - self.step, 0)
+        left2 = cfg.total_steps - self.step - left1
+        s1, s2 = self._rate[1], self._rate[2]
+        if s2 is None and s1 is not None:
+            a = self.avatar.config
+            s2 = s1 * cfg.lods_per_step * stage2_cost_ratio(a.s_max, a.s_min)
+        return left1 * (s1 or 0.0) + left2 * (s2 or 0.0)
+
+    # -- files ----------------------------------------------------------------------------
+
+    def save(self) -> Path:
+        """Write the training state, then the avatar checkpoint; returns the avatar's path."""
+        state = {"format": STATE_FORMAT, "version": STATE_VERSION, "step": self.step,
+                 "elapsed": self.elapsed, "config": self.config.to_json(),
+                 "avatar_config": self.avatar.config.to_json(),
+                 "model": {k: v.detach().cpu() for k, v in self.avatar.state_dict().items()},
+                 "optimizer": _to_cpu(self.optimizer.state_dict())}
+        with atomic_path(self.out_dir / STATE_FILE) as tmp:
+            torch.save(state, tmp)
+        save_avatar(self.out_dir / AVATAR_FILE, self.avatar)
+        return self.out_dir / AVATAR_FILE
+
+    def write_config(self) -> None:
+        write_bytes_atomic(self.out_dir / CONFIG_FILE, self.config.to_json().encode() + b"\n")
+
+    def run(self, on_step: Callable[[StepReport], None],
+            on_checkpoint: Callable[[int, Path], None],
+            should_stop: Callable[[], bool] = lambda: False) -> bool:
+        """Train to the end (True) or until should_stop() after a step (False, saved)."""
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.write_config()
+        every = self.config.checkpoint_every
+        while self.step < self.config.total_steps:
+            report = self.train_step()
+            if not all(math.isfinite(v) for v in report.loss.values()):
+                raise FloatingPointError(f"non-finite loss at step {self.step}: {report.loss}")
+            on_step(report)
+            last, stop = self.step == self.config.total_steps, should_stop()
+            if last or stop or self.step % every == 0:
+                on_checkpoint(self.step, self.save())
+            if stop and not last:
+                return False
+        return True
+
+
+def load_state(path) -> dict:
+    """A training state file (tensors on the CPU), checked for its format and version."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        raise ValueError(f"{path}: unreadable training state ({exc})") from exc
+    if not isinstance(state, dict) or state.get("format") != STATE_FORMAT \
+            or state.get("version") != STATE_VERSION:
+        raise ValueError(f"{path}: not an ArchHead training state of version {STATE_VERSION}")
+    return state
+
+
+def state_config(state: dict) -> TrainConfig:
+    return TrainConfig.from_dict(json.loads(state["config"]))
+
+
+def _to_cpu(value):
+    """A copy of an optimizer state dict with every tensor on the CPU."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, dict):
+        return {k: _to_cpu(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_to_cpu(v) for v in value)
+    return value

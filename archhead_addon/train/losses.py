@@ -1,0 +1,80 @@
+"""The training loss of the paper (eq. 6-7):
+
+    L     = L_rgb + λ_lpips L_lpips + λ_μ L_μ + λ_s (1 - 0.5 l) L_s
+    L_rgb = Huber(I, Î) + λ_parts Huber(I·B, Î·B)
+
+I the ground-truth image, Î the render, B the eye/mouth parts mask, l the level of detail.
+L_μ and L_s are the mean L2 norms of the Gaussians' offsets from the UV surface and of their
+scales (metres, activated: exp of the log scales); denser levels (small l) get the larger
+scale weight. L_lpips is ST-LPIPS (perceptual.py), the shift-tolerant LPIPS.
+
+Huber's threshold is not in the paper. On images in [0, 1] the common default of 1 makes it
+plain half-MSE; 0.1 keeps it quadratic near convergence and linear (L1-like, robust) for the
+gross errors of early training and misaligned pixels.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from ..avatar.gaussians import Gaussians
+from .config import LossWeights
+
+
+def huber(pred: torch.Tensor, target: torch.Tensor, delta: float) -> torch.Tensor:
+    """Mean Huber loss: 0.5 x² where |x| <= delta, delta (|x| - 0.5 delta) beyond."""
+    return F.huber_loss(pred, target, delta=delta)
+
+
+def parts_huber(pred, target, parts, delta: float) -> torch.Tensor:
+    """Huber(I·B, Î·B), the mean over every pixel (not only the masked ones, as in eq. 7).
+    Images (H,W,3), parts (H,W) in [0, 1]."""
+    b = parts[..., None]
+    return huber(pred * b, target * b, delta)
+
+
+def offset_norm(offsets: torch.Tensor) -> torch.Tensor:
+    """L_μ: the mean L2 norm of the offsets (N,3)."""
+    return offsets.norm(dim=1).mean()
+
+
+def scale_norm(log_scales: torch.Tensor) -> torch.Tensor:
+    """L_s: the mean L2 norm of the scales exp(log_scales) (N,3)."""
+    return log_scales.exp().norm(dim=1).mean()
+
+
+def scale_weight(weights: LossWeights, lod: float) -> float:
+    """λ_s (1 - 0.5 l): twice the weight at the densest level as at the sparsest."""
+    return weights.scale * (1.0 - 0.5 * lod)
+
+
+class TrainingLoss:
+    """Eq. 6 for one render; `perceptual` is an ST-LPIPS module (or None to leave it out)."""
+
+    def __init__(self, weights: LossWeights, perceptual=None):
+        self.weights, self.perceptual = weights, perceptual
+
+    def __call__(self, pred: torch.Tensor, target: torch.Tensor, parts: torch.Tensor,
+                 gaussians: Gaussians, lod: float, lpips_weight: float | None = None
+                 ) -> tuple[torch.Tensor, dict[str, float]]:
+        """(total, terms): pred and target (H,W,3) in [0, 1], parts (H,W). The terms are the
+        unweighted values of each part, and the total, as floats for logging.
+        `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out)."""
+        w = self.weights
+        lpips_weight = w.lpips if lpips_weight is None else lpips_weight
+        terms = {"rgb": huber(pred, target, w.huber_delta),
+                 "parts": parts_huber(pred, target, parts, w.huber_delta),
+                 "offset": offset_norm(gaussians.offsets),
+                 "scale": scale_norm(gaussians.log_scales)}
+        total = (terms["rgb"] + w.parts * terms["parts"] + w.offset * terms["offset"]
+                 + scale_weight(w, lod) * terms["scale"])
+        if self.perceptual is not None and lpips_weight > 0:
+            terms["lpips"] = self.perceptual(_nchw(pred), _nchw(target))[0]
+            total = total + lpips_weight * terms["lpips"]
+        terms["total"] = total
+        return total, {k: float(v.detach()) for k, v in terms.items()}
+
+
+def _nchw(image: torch.Tensor) -> torch.Tensor:
+    return image.permute(2, 0, 1)[None]

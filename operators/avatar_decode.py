@@ -1,0 +1,156 @@
+"""Decode an avatar's frame set (keyed frames, every frame or a stride, in the scene's range)
+into the caches, each frame at the level of detail it will have.
+
+The operator is modal: a timer decodes one frame per tick, so the interface stays live,
+shows progress (cursor, status bar, N-panel) and stops on Esc or the panel's Cancel.
+Scripts call `decode_frames`, which does the same work in one go.
+"""
+
+from __future__ import annotations
+
+import bpy
+
+from ..archhead_addon.avatar.frame_selection import frames_to_decode
+from ..archhead_addon.io.errors import InputError
+from .avatar_load import active_avatar
+from .avatar_session import Decoded, session
+from .handlers import refresh_avatar, resume, suspend
+from .scene_state import avatar_lod, frame_codes, head_rig, keyed_frames
+
+progress: dict[int, dict] = {}  # object session_uid -> {"done", "total", "cancel"}
+
+
+def decode_set(scene, obj) -> list[int]:
+    settings = obj.archhead_avatar
+    head = settings.head
+    keyed = ()
+    if settings.decode_frames == "KEYED":
+        keyed = keyed_frames(head_rig(head), head.data.shape_keys, obj)
+    return frames_to_decode(settings.decode_frames, scene.frame_start, scene.frame_end, keyed,
+                            settings.stride)
+
+
+def decode_frame(context, obj, frame: int) -> None:
+    """Move to `frame`, read the codes and level of detail there, decode into the caches."""
+    avatar = session(obj)
+    context.scene.frame_set(frame)
+    depsgraph = context.evaluated_depsgraph_get()
+    codes = frame_codes(obj.archhead_avatar.head, depsgraph, avatar.joint_dirs)
+    lod = avatar.lod_override if avatar.lod_override is not None else avatar_lod(obj, depsgraph)
+    key, _ = avatar.frame(codes, lod)
+    avatar.decoded[frame] = Decoded(key, codes, lod)
+
+
+def decode_frames(context, obj, frames=None) -> int:
+    """Decode `frames` (default: the object's decode set); returns how many."""
+    scene = context.scene
+    frames = decode_set(scene, obj) if frames is None else list(frames)
+    session(obj).decoded.clear()
+    start = scene.frame_current
+    suspend()
+    try:
+        for frame in frames:
+            decode_frame(context, obj, frame)
+    finally:
+        scene.frame_set(start)
+        resume()
+    refresh_avatar(obj, scene, context.evaluated_depsgraph_get())
+    return len(frames)
+
+
+class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
+    """Decode the avatar's frames (keyed, every or every n-th) into the cache; Esc cancels"""
+
+    bl_idname = "archhead.decode_avatar"
+    bl_label = "Decode Frames"
+
+    @classmethod
+    def poll(cls, context):
+        return active_avatar(context) is not None
+
+    def execute(self, context):
+        obj = active_avatar(context)
+        try:
+            count = decode_frames(context, obj)
+        except (InputError, OSError, ValueError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Decoded {count} frames")
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        if bpy.app.background:  # no event loop to drive a modal operator
+            return self.execute(context)
+        self.obj = active_avatar(context)
+        try:
+            session(self.obj).decoded.clear()
+        except (InputError, OSError, ValueError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.frames = decode_set(context.scene, self.obj)
+        self.start = context.scene.frame_current
+        self.uid = self.obj.session_uid
+        progress[self.uid] = {"done": 0, "total": len(self.frames), "cancel": False}
+        wm = context.window_manager
+        wm.progress_begin(0, max(len(self.frames), 1))
+        self.timer = wm.event_timer_add(0.001, window=context.window)
+        wm.modal_handler_add(self)
+        suspend()
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        state = progress[self.uid]
+        if event.type == "ESC" or state["cancel"]:
+            return self._finish(context, f"Cancelled after {state['done']} frames")
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            decode_frame(context, self.obj, self.frames[state["done"]])
+        except (InputError, OSError, ValueError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return self._finish(context, None)
+        state["done"] += 1
+        context.window_manager.progress_update(state["done"])
+        text = f"ArchHead: decoded {state['done']} / {state['total']} frames (Esc cancels)"
+        if context.workspace is not None:
+            context.workspace.status_text_set(text)
+        _redraw_sidebars(context)
+        if state["done"] == state["total"]:
+            return self._finish(context, f"Decoded {state['total']} frames")
+        return {"RUNNING_MODAL"}
+
+    def _finish(self, context, message):
+        wm = context.window_manager
+        wm.event_timer_remove(self.timer)
+        wm.progress_end()
+        if context.workspace is not None:
+            context.workspace.status_text_set(None)
+        progress.pop(self.uid, None)
+        context.scene.frame_set(self.start)
+        resume()
+        refresh_avatar(self.obj, context.scene, context.evaluated_depsgraph_get())
+        _redraw_sidebars(context)
+        if message:
+            self.report({"INFO"}, message)
+        return {"FINISHED"} if message and not message.startswith("Cancelled") \
+            else {"CANCELLED"}
+
+
+class ARCHHEAD_OT_cancel_decode(bpy.types.Operator):
+    """Stop decoding after the current frame"""
+
+    bl_idname = "archhead.cancel_decode"
+    bl_label = "Cancel Decoding"
+    bl_options = {"INTERNAL"}
+
+    def execute(self, context):
+        for state in progress.values():
+            state["cancel"] = True
+        return {"FINISHED"}
+
+
+def _redraw_sidebars(context) -> None:
+    screen = context.screen
+    for area in screen.areas if screen else ():
+        if area.type == "VIEW_3D":
+            area.tag_redraw()

@@ -1,0 +1,147 @@
+"""What an avatar object needs at run time and cannot store in the .blend: the numpy runtime,
+the decode caches and which frames were decoded. One session per point object, made on first
+use from the object's settings (so a reopened .blend, a render and a farm job rebuild it)."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from ..archhead_addon.avatar.checkpoint_format import read_checkpoint
+from ..archhead_addon.avatar.decode_cache import (
+    DiskCache,
+    MemoryCache,
+    SplatFrame,
+    file_digest,
+    frame_key,
+)
+from ..archhead_addon.avatar.lod import resolution_for_lod
+from ..archhead_addon.avatar.runtime import AvatarRuntime
+from ..archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
+from ..archhead_addon.flame.model import FlameModel, load_model
+from ..panels.preferences import get_preferences
+
+PRECISION = "fp32"
+_base_models: dict[str, FlameModel] = {}
+_sessions: dict[int, AvatarSession] = {}
+_failures: dict[int, tuple[tuple, Exception]] = {}
+
+
+@dataclass
+class Decoded:
+    """A frame of the decode set: its cache key and what re-decodes it if evicted."""
+
+    key: str
+    codes: FrameCodes
+    lod: float
+
+
+def flame_model_path(context=None) -> str:
+    prefs = get_preferences(context or bpy.context)
+    return prefs.flame_model_path if prefs else ""
+
+
+def base_model(path: str = "") -> FlameModel:
+    """The FLAME model without teeth (the runtime adds them), loaded once per path."""
+    key = str(path or "")
+    if key not in _base_models:
+        _base_models[key] = load_model(key or None)
+    return _base_models[key]
+
+
+class AvatarSession:
+    def __init__(self, obj):
+        settings = obj.archhead_avatar
+        self.source = _source(obj)
+        path = Path(bpy.path.abspath(settings.checkpoint))
+        ckpt = read_checkpoint(path)
+        if settings.identity == "HEAD" and settings.head is not None:
+            identity = np.asarray(settings.head["archhead_identity"], np.float32)
+            ckpt = replace(ckpt, identity_shape=identity)
+        self.runtime = AvatarRuntime(ckpt, base_model(flame_model_path()), path)
+        self.n_expr = ckpt.config.n_expr
+        self.joint_dirs = expression_joint_dirs(self.runtime.mesh, self.runtime.mesh.n_expr)
+        h = hashlib.sha1(f"{file_digest(path)}/{PRECISION}/".encode())
+        h.update(np.ascontiguousarray(ckpt.identity_shape, np.float32).tobytes())
+        self.digest = h.hexdigest()
+        self.memory = MemoryCache(settings.memory_mb << 20)
+        self.disk = _disk_cache(settings)
+        self.decoded: dict[int, Decoded] = {}
+        self.shown: tuple | None = None  # what the point object holds now
+        self.lod_override: float | None = None  # batch renders fix the level of detail
+
+    def key(self, codes: FrameCodes, lod: float) -> str:
+        return frame_key(self.digest, codes.digest(), resolution_for_lod(lod)[0])
+
+    def frame(self, codes: FrameCodes, lod: float) -> tuple[str, SplatFrame]:
+        """(key, Gaussians) from memory, the disk cache or a fresh decode."""
+        key = self.key(codes, lod)
+        splat = self.memory.get(key)
+        if splat is None and self.disk is not None:
+            splat = self.disk.get(key)
+        if splat is None:
+            kwargs = codes.as_kwargs()
+            kwargs["expr"] = kwargs["expr"][:self.n_expr]
+            gaussians = self.runtime.decode(resolution_for_lod(lod)[0], precision=PRECISION,
+                                            **kwargs)
+            splat = SplatFrame.from_gaussians(gaussians)
+            if self.disk is not None:
+                self.disk.put(key, splat)
+        self.memory.put(key, splat)
+        return key, splat
+
+
+def _source(obj) -> tuple:
+    """The settings a session is built from; a change of any makes a new session."""
+    s = obj.archhead_avatar
+    return (bpy.path.abspath(s.checkpoint), s.identity, s.head.name if s.head else "",
+            flame_model_path(), s.disk_cache, bpy.path.abspath(s.cache_dir), s.memory_mb)
+
+
+def _disk_cache(settings) -> DiskCache | None:
+    if not settings.disk_cache:
+        return None
+    folder = bpy.path.abspath(settings.cache_dir)
+    if settings.cache_dir.startswith("//") and not bpy.data.filepath:
+        return None  # relative to an unsaved .blend: nowhere to put it yet
+    return DiskCache(folder)
+
+
+def session(obj) -> AvatarSession:
+    """The object's session, rebuilt when its settings changed. A failure is remembered with
+    its settings and raised again without retrying (handlers ask on every update)."""
+    uid, source = obj.session_uid, _source(obj)
+    current = _sessions.get(uid)
+    if current is not None and current.source == source:
+        return current
+    failed = _failures.get(uid)
+    if failed is not None and failed[0] == source:
+        raise failed[1]
+    try:
+        current = _sessions[uid] = AvatarSession(obj)
+    except (OSError, ValueError, KeyError) as exc:  # InputError is a ValueError
+        _failures[uid] = (source, exc)
+        raise
+    _failures.pop(uid, None)
+    return current
+
+
+def drop_session(obj) -> None:
+    """Forget the object's session (its checkpoint file was replaced)."""
+    _sessions.pop(obj.session_uid, None)
+    _failures.pop(obj.session_uid, None)
+
+
+def forget_shown() -> None:
+    """The point objects may no longer hold what their sessions showed (undo, redo)."""
+    for current in _sessions.values():
+        current.shown = None
+
+
+def drop_sessions() -> None:
+    _sessions.clear()
+    _failures.clear()

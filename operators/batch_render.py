@@ -1,0 +1,121 @@
+"""Batch renders of a scene with avatars: frames at a fixed or animated level of detail,
+with Blender's engine (EEVEE or Cycles, through the handlers) or "exact splat" (the
+Gaussians the avatars show, rendered by the splat kernel from the scene camera).
+
+`operators/script_batch.py` is the command line around `render_frames`.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from ..archhead_addon.avatar.frame_selection import contiguous_runs
+from ..archhead_addon.camera import BlenderCamera
+from ..archhead_addon.export.transform import transform_gaussians
+from ..archhead_addon.io.atomic import write_bytes_atomic
+from ..archhead_addon.splat.blender_render import render_from_blender_camera
+from ..archhead_addon.synthetic.png import encode_png
+from .avatar_decode import decode_frames
+from .avatar_props import is_avatar
+from .avatar_session import session
+from .handlers import frame_to_show
+
+
+def scene_avatars(scene) -> list:
+    return [obj for obj in scene.objects if is_avatar(obj)]
+
+
+def blender_camera(scene) -> BlenderCamera:
+    """The scene camera's projection settings at the current frame."""
+    if scene.camera is None or scene.camera.type != "CAMERA" or scene.camera.data.type != "PERSP":
+        raise ValueError("exact splat renders need a perspective scene camera")
+    data, r = scene.camera.data, scene.render
+    scale = r.resolution_percentage / 100.0
+    return BlenderCamera(lens=data.lens, sensor_width=data.sensor_width, shift_x=data.shift_x,
+                         shift_y=data.shift_y, resolution_x=round(r.resolution_x * scale),
+                         resolution_y=round(r.resolution_y * scale),
+                         pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y,
+                         sensor_fit=data.sensor_fit, sensor_height=data.sensor_height)
+
+
+@contextmanager
+def fixed_lod(avatars, lod: float | None):
+    """Every avatar at `lod` (overriding keys and drivers) for the duration."""
+    sessions = [session(obj) for obj in avatars]
+    for s in sessions:
+        s.lod_override = lod
+    try:
+        yield
+    finally:
+        for s in sessions:
+            s.lod_override = None
+
+
+@contextmanager
+def _restored(scene):
+    r = scene.render
+    saved = (scene.frame_start, scene.frame_end, scene.frame_step, scene.frame_current,
+             r.filepath)
+    try:
+        yield
+    finally:
+        (scene.frame_start, scene.frame_end, scene.frame_step, frame, r.filepath) = saved
+        scene.frame_set(frame)
+
+
+def render_frames(context, frames, out_dir, lod: float | None = None, exact: bool = False,
+                  decode_only: bool = False) -> list[Path]:
+    """Render `frames` into out_dir/frame_####.<ext>; returns the files written."""
+    scene = context.scene
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    avatars = scene_avatars(scene)
+    with fixed_lod(avatars, lod), _restored(scene):
+        if decode_only:
+            for obj in avatars:
+                decode_frames(context, obj, frames)
+            return []
+        if exact:
+            return [_render_exact(context, frame, out_dir, avatars) for frame in frames]
+        written = []
+        scene.render.filepath = str(out_dir / "frame_")
+        for first, last in contiguous_runs(frames):
+            scene.frame_start, scene.frame_end, scene.frame_step = first, last, 1
+            bpy.ops.render.render(animation=True)
+            written += [Path(scene.render.frame_path(frame=f)) for f in range(first, last + 1)]
+        return written
+
+
+def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
+    scene = context.scene
+    scene.frame_set(frame)
+    depsgraph = context.evaluated_depsgraph_get()
+    parts = []
+    for obj in avatars:
+        _, splat = frame_to_show(obj, scene, depsgraph)
+        world = np.array(obj.evaluated_get(depsgraph).matrix_world)
+        means, log_scales, quats, sh = transform_gaussians(world, splat.means, splat.log_scales,
+                                                           splat.quats, splat.sh)
+        parts.append((means, quats, log_scales, splat.opacity_logits, sh))
+    camera = blender_camera(scene)
+    arrays = [np.concatenate(a) for a in zip(*parts, strict=True)]
+    raster = render_from_blender_camera(
+        *arrays, camera, np.array(scene.camera.evaluated_get(depsgraph).matrix_world),
+        np.eye(4), num_threads=scene.render.threads if scene.render.threads_mode == "FIXED"
+        else 0)
+    path = out_dir / f"frame_{frame:04d}.png"
+    write_png(path, raster.rgb, raster.alpha)
+    return path
+
+
+def write_png(path: Path, premultiplied_rgb: np.ndarray, alpha: np.ndarray) -> None:
+    """An 8-bit RGBA PNG (straight alpha, as PNG defines it) from a premultiplied image."""
+    rgba = np.empty((*alpha.shape, 4), np.float32)
+    rgba[..., :3] = premultiplied_rgb / np.maximum(alpha, 1e-6)[..., None]
+    rgba[..., 3] = alpha
+    pixels = np.round(np.clip(rgba, 0.0, 1.0) * 255).astype(np.uint8)
+    write_bytes_atomic(path, encode_png(pixels))

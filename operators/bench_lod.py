@@ -1,0 +1,139 @@
+"""Benchmark: what a change of the avatar's level of detail costs in Blender.
+
+    python operators/bench_lod.py [--repeats 10] [--checkpoint AVATAR.npz]
+
+Runs with 2 BLAS / OpenMP threads (restarting itself with them set). Imports the demo head,
+loads an avatar (the checkpoint given, else an untrained one of the built-in model, which
+needs torch to create; the decode cost does not depend on the weights), then times, per
+change: the slider moved within one UV resolution (its tables cached), the first visit of a
+resolution (tables built), a scrub across the whole range, and a frame change served from
+the memory cache. "total" is the property change to an evaluated depsgraph: handler (decode
++ writing the points) and Geometry Nodes instancing. Prints a markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+HERE = Path(__file__).resolve().parent
+
+
+def _ensure_two_threads() -> None:
+    if any(os.environ.get(v) != "2" for v in THREAD_VARS):
+        env = {**os.environ, **dict.fromkeys(THREAD_VARS, "2")}
+        os.execve(sys.executable, [sys.executable, __file__, *sys.argv[1:]], env)
+
+
+def _ms(fn, repeats: int) -> float:
+    """Median milliseconds of fn(i) over i = 0 .. repeats - 1."""
+    import numpy as np
+
+    times = []
+    for i in range(repeats):
+        start = time.perf_counter()
+        fn(i)
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def main(argv) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--checkpoint", help="avatar checkpoint (default: an untrained one)")
+    args = parser.parse_args(argv)
+
+    import bpy
+
+    sys.path[:0] = [str(HERE.parent), str(HERE)]
+    from script_import import enable_addon
+
+    from archhead_addon.avatar.lod import resolution_for_lod
+    from archhead_addon.avatar.point_attributes import point_attributes
+    from archhead_addon.sequences import write_canonical
+    from archhead_addon.sequences.demo import demo_sequence
+
+    module = enable_addon()
+    folder = Path(tempfile.mkdtemp())
+    checkpoint = Path(args.checkpoint) if args.checkpoint else _untrained(folder)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    write_canonical(demo_sequence(frames=30), folder / "demo.npz")
+    bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
+    head = bpy.data.objects["demo"]
+    bpy.context.view_layer.objects.active = head
+    bpy.ops.archhead.load_avatar(filepath=str(checkpoint))
+    obj = bpy.data.objects["demo_avatar"]
+    ops = importlib.import_module(f"{module}.operators")
+    runtime = ops.avatar_session.session(obj).runtime
+    settings = obj.archhead_avatar
+    view_layer = bpy.context.view_layer
+
+    def set_lod(value):
+        settings.lod = value
+        view_layer.update()
+
+    fresh = iter(range(1, 10**6))
+
+    def near(lod):
+        """A value not shown before (no cached frame) with the resolution of `lod`."""
+        return lod + (1e-6 if lod == 0.0 else -1e-6) * next(fresh)
+
+    rows = []
+    for lod in (0.0, 1.0):
+        size = resolution_for_lod(lod)[1]
+        set_lod(lod)  # builds this resolution's tables
+        total = _ms(lambda i, lod=lod: set_lod(near(lod)), args.repeats)
+        codes = ops.scene_state.frame_codes(head, bpy.context.evaluated_depsgraph_get(),
+                                            ops.avatar_session.session(obj).joint_dirs)
+        kwargs = codes.as_kwargs()
+        decode = _ms(lambda i, lod=lod, kw=kwargs: runtime.decode(lod, **kw), args.repeats)
+        frame = ops.avatar_session.session(obj).frame(codes, lod)[1]
+        attrs = point_attributes(frame)
+        write = _ms(lambda i, a=attrs: ops.point_instances.write_points(obj, a), args.repeats)
+
+        def first_visit(i, lod=lod):
+            runtime.level.cache_clear()
+            set_lod(near(lod))
+
+        build = _ms(first_visit, max(args.repeats // 2, 2))
+        rows.append((lod, size, len(obj.data.vertices), total, decode, write, build))
+
+    set_lod(0.0)
+    scrub_values = [i / 20 for i in range(21)]
+    scrub = _ms(lambda i: set_lod(scrub_values[i % len(scrub_values)]), len(scrub_values))
+    playback = {}
+    for lod in (0.0, 1.0):
+        set_lod(lod)
+        for frame in range(1, 6):  # fill the memory cache
+            bpy.context.scene.frame_set(frame)
+        playback[lod] = _ms(lambda i: bpy.context.scene.frame_set(1 + i % 5), 10)
+
+    print("| l | S | Gaussians | LOD change total ms | decode ms | write points ms "
+          "| first visit of S ms | cached frame change ms |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for lod, size, count, total, decode, write, build in rows:
+        print(f"| {lod:.0f} | {size} | {count:,} | {total:.0f} | {decode:.0f} | {write:.1f} "
+              f"| {build:.0f} | {playback[lod]:.0f} |")
+    print(f"\nScrubbing the slider 0 -> 1 in steps of 0.05 (a new S at every step): "
+          f"{scrub:.0f} ms per change (median)")
+
+
+def _untrained(folder: Path) -> Path:
+    from archhead_addon.avatar.checkpoint import save_avatar
+    from archhead_addon.avatar.model import ArchHeadAvatar
+    from archhead_addon.flame import load_model
+
+    path = folder / "untrained.npz"
+    save_avatar(path, ArchHeadAvatar.create(load_model()))
+    return path
+
+
+if __name__ == "__main__":
+    _ensure_two_threads()
+    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])

@@ -1,0 +1,128 @@
+"""Persistent handlers that keep every avatar's point instances in step with the scene.
+
+frame_change_post (playback, scrubbing, renders, `blender -b`) and depsgraph_update_post
+(an edited shape key, bone, slider or driver) both call `refresh_scene`. A change is applied
+once: each avatar remembers the state it shows (the frame's cache key and, with view-dependent
+colour, the camera centre) and does nothing when that state has not changed, so the handler
+re-entering after its own write costs one read of the codes. Handlers never call operators.
+
+Renders evaluate their own depsgraph and run frame_change_post on it; the point mesh changed
+there is evaluated again by Blender before the frame renders. Blender requires the interface
+to be locked while a handler edits data during a render (`render.use_lock_interface`), which
+loading an avatar switches on.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.app.handlers import persistent
+
+from ..archhead_addon.avatar.decode_cache import SplatFrame
+from ..archhead_addon.avatar.frame_selection import held_frame
+from ..archhead_addon.avatar.point_attributes import point_attributes
+from ..archhead_addon.io.errors import InputError
+from .avatar_props import is_avatar
+from .avatar_session import drop_sessions, forget_shown, session
+from .point_instances import write_points
+from .scene_state import avatar_lod, camera_in_object, frame_codes
+
+_state = {"suspended": 0}
+errors: dict[int, str] = {}  # object session_uid -> the last error (shown in the N-panel)
+
+
+def suspend() -> None:
+    """Bulk work that moves frames itself (decoding a frame set) pauses the refreshes."""
+    _state["suspended"] += 1
+
+
+def resume() -> None:
+    _state["suspended"] = max(_state["suspended"] - 1, 0)
+
+
+def frame_to_show(obj, scene, depsgraph) -> tuple[str, SplatFrame]:
+    """(cache key, Gaussians) the avatar shows at the scene's frame: the codes and level of
+    detail there, or with "Hold" between decoded frames, the last decoded frame's."""
+    avatar = session(obj)
+    settings = obj.archhead_avatar
+    frame = scene.frame_current
+    if settings.between == "HOLD" and frame not in avatar.decoded:
+        held = held_frame(sorted(avatar.decoded), frame)
+        if held is not None:
+            record = avatar.decoded[held]
+            return avatar.frame(record.codes, record.lod)
+    codes = frame_codes(settings.head, depsgraph, avatar.joint_dirs)
+    lod = avatar.lod_override if avatar.lod_override is not None else avatar_lod(obj, depsgraph)
+    return avatar.frame(codes, lod)
+
+
+def refresh_avatar(obj, scene, depsgraph) -> bool:
+    """Bring one avatar's points up to date; True if they were rewritten."""
+    avatar = session(obj)
+    key, splat = frame_to_show(obj, scene, depsgraph)
+    view_from = None
+    if obj.archhead_avatar.view_dependent:
+        view_from = camera_in_object(obj, scene, depsgraph)
+    state = (key, None if view_from is None else tuple(view_from.round(6)))
+    if state == avatar.shown:
+        return False
+    write_points(obj, point_attributes(splat, view_from))
+    avatar.shown = state
+    return True
+
+
+def refresh_scene(scene, depsgraph) -> None:
+    if _state["suspended"]:
+        return
+    for obj in scene.objects:
+        if not is_avatar(obj):
+            continue
+        try:
+            refresh_avatar(obj, scene, depsgraph)
+            errors.pop(obj.session_uid, None)
+        except (InputError, OSError, ValueError, KeyError) as exc:
+            if errors.get(obj.session_uid) != str(exc):  # say it once, not every update
+                print(f"ArchHead: {obj.name}: {exc}")
+            errors[obj.session_uid] = str(exc)
+
+
+@persistent
+def on_frame_change(scene, depsgraph):
+    refresh_scene(scene, depsgraph)
+
+
+@persistent
+def on_depsgraph_update(scene, depsgraph):
+    refresh_scene(scene, depsgraph)
+
+
+@persistent
+def on_load(_filepath):
+    drop_sessions()
+    errors.clear()
+    _state["suspended"] = 0  # a decode interrupted by loading a file never resumed
+
+
+@persistent
+def on_undo(*_args):
+    """Undo and redo put back older point data: show the scene's state again."""
+    forget_shown()
+
+
+_HANDLERS = ((bpy.app.handlers.frame_change_post, on_frame_change),
+             (bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
+             (bpy.app.handlers.load_post, on_load),
+             (bpy.app.handlers.undo_post, on_undo),
+             (bpy.app.handlers.redo_post, on_undo))
+
+
+def register():
+    for handlers, fn in _HANDLERS:
+        if fn not in handlers:
+            handlers.append(fn)
+
+
+def unregister():
+    for handlers, fn in _HANDLERS:
+        while fn in handlers:
+            handlers.remove(fn)
+    drop_sessions()

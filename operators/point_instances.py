@@ -1,0 +1,209 @@
+"""The avatar as point instances: a mesh of loose vertices carrying the Gaussians' attributes,
+one Geometry Nodes group that puts an ellipsoid on every point, one emissive material with a
+Gaussian falloff. Works the same in EEVEE and Cycles, in the viewport and in renders.
+
+Points are loose mesh vertices (`vertices.add` + `foreach_set`), instanced directly by
+"Instance on Points": `bpy.data.pointclouds` has no Python API to add points, and a mesh works
+from Blender 4.2 to 5.0. The `rotation` attribute is of type QUATERNION, which the Named
+Attribute node reads as a rotation socket, so it feeds "Instance on Points" as it is.
+
+Each instance is a unit icosphere scaled to SIGMA_EXTENT standard deviations. The material
+computes, in the instance's own space (where the Gaussian is isotropic), the squared distance
+d^2 of the camera ray from the centre, in units of the sphere's radius, and gives the front face
+alpha = opacity * exp(-d^2 SIGMA_EXTENT^2 / 2): the Gaussian's peak density along the ray, as a
+splat renderer evaluates it. Back faces are fully transparent. Colours are emitted unlit.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+SIGMA_EXTENT = 3.0  # instance radius in standard deviations (3DGS' own 3-sigma extent)
+ICO_SUBDIVISIONS = 2  # 80 faces: the falloff, not the facets, shapes each Gaussian
+NODE_GROUP = "ArchHead Gaussians"
+MATERIAL = "ArchHead Gaussian"
+# attribute name -> (type, foreach_set field, components)
+ATTRIBUTES = {"scale": ("FLOAT_VECTOR", "vector", 3), "rotation": ("QUATERNION", "value", 4),
+              "opacity": ("FLOAT", "value", 1), "colour": ("FLOAT_COLOR", "color", 4),
+              "colour_view": ("FLOAT_COLOR", "color", 4)}
+
+
+def create_point_object(name: str, parent, collection):
+    """An empty point object under `parent` (the head's rig: FLAME space inside it)."""
+    mesh = bpy.data.meshes.new(name)
+    obj = bpy.data.objects.new(name, mesh)
+    collection.objects.link(obj)
+    obj.parent = parent
+    obj.matrix_parent_inverse.identity()
+    modifier = obj.modifiers.new("ArchHead Gaussians", "NODES")
+    modifier.node_group = gaussian_node_group()
+    obj.visible_shadow = False  # emitters of their own colour: they cast no shadow
+    return obj
+
+
+def write_points(obj, attributes: dict[str, np.ndarray]) -> None:
+    """Replace the point data with `point_attributes` arrays (bulk writes only)."""
+    mesh = obj.data
+    n = len(attributes["position"])
+    if len(mesh.vertices) != n:
+        mesh.clear_geometry()
+        mesh.vertices.add(n)
+    for name in ATTRIBUTES:
+        if name not in attributes and name in mesh.attributes:
+            mesh.attributes.remove(mesh.attributes[name])
+    mesh.attributes["position"].data.foreach_set("vector", _flat(attributes["position"]))
+    for name, (kind, field, _) in ATTRIBUTES.items():
+        if name not in attributes:
+            continue
+        attr = mesh.attributes.get(name) or mesh.attributes.new(name, kind, "POINT")
+        attr.data.foreach_set(field, _flat(attributes[name]))
+    mesh.update()
+
+
+def read_points(obj) -> dict[str, np.ndarray]:
+    """The point data back (for tests and the exact splat path)."""
+    mesh = obj.data
+    n = len(mesh.vertices)
+    out = {"position": _get(mesh.attributes["position"], "vector", n, 3)}
+    for name, (_, field, width) in ATTRIBUTES.items():
+        if name in mesh.attributes:
+            out[name] = _get(mesh.attributes[name], field, n, width)
+    return out
+
+
+def _flat(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, np.float32).ravel()
+
+
+def _get(attr, field: str, n: int, width: int) -> np.ndarray:
+    out = np.empty(n * width, np.float32)
+    attr.data.foreach_get(field, out)
+    return out.reshape(n, width) if width > 1 else out
+
+
+def gaussian_node_group():
+    """Instance on Points: icosphere x (scale * SIGMA_EXTENT), rotated by the quaternion."""
+    group = bpy.data.node_groups.get(NODE_GROUP)
+    if group is not None:
+        return group
+    group = bpy.data.node_groups.new(NODE_GROUP, "GeometryNodeTree")
+    group.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    group.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = group.nodes, group.links
+    inp, out = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    sphere = nodes.new("GeometryNodeMeshIcoSphere")
+    sphere.inputs["Radius"].default_value = 1.0
+    sphere.inputs["Subdivisions"].default_value = ICO_SUBDIVISIONS
+    set_material = nodes.new("GeometryNodeSetMaterial")
+    set_material.inputs["Material"].default_value = gaussian_material()
+    rotation = _named_attribute(nodes, "rotation", "QUATERNION")
+    scale = _named_attribute(nodes, "scale", "FLOAT_VECTOR")
+    extent = nodes.new("ShaderNodeVectorMath")
+    extent.operation = "SCALE"
+    extent.inputs["Scale"].default_value = SIGMA_EXTENT
+    instance = nodes.new("GeometryNodeInstanceOnPoints")
+    links.new(sphere.outputs["Mesh"], set_material.inputs["Geometry"])
+    links.new(inp.outputs["Geometry"], instance.inputs["Points"])
+    links.new(set_material.outputs["Geometry"], instance.inputs["Instance"])
+    links.new(rotation.outputs["Attribute"], instance.inputs["Rotation"])
+    links.new(scale.outputs["Attribute"], extent.inputs[0])
+    links.new(extent.outputs["Vector"], instance.inputs["Scale"])
+    links.new(instance.outputs["Instances"], out.inputs["Geometry"])
+    _arrange([inp, sphere, set_material, rotation, scale, extent, instance, out])
+    return group
+
+
+def _named_attribute(nodes, name: str, data_type: str):
+    node = nodes.new("GeometryNodeInputNamedAttribute")
+    node.data_type = data_type
+    node.inputs["Name"].default_value = name
+    return node
+
+
+def gaussian_material():
+    """Emission of the instance's colour over a transparent BSDF, mixed by the falloff."""
+    mat = bpy.data.materials.get(MATERIAL)
+    if mat is not None:
+        return mat
+    mat = bpy.data.materials.new(MATERIAL)
+    if mat.node_tree is None:  # before Blender 5.0 a new material has no node tree
+        mat.use_nodes = True
+    mat.surface_render_method = "DITHERED"  # EEVEE: order-independent, converges with samples
+    mat.use_transparent_shadow = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    math = _MathBuilder(nodes, links)
+
+    coords = nodes.new("ShaderNodeTexCoord")
+    geometry = nodes.new("ShaderNodeNewGeometry")
+    to_object = nodes.new("ShaderNodeVectorTransform")
+    to_object.vector_type, to_object.convert_from, to_object.convert_to = (
+        "VECTOR", "WORLD", "OBJECT")
+    links.new(geometry.outputs["Incoming"], to_object.inputs["Vector"])
+    view = math.vector("NORMALIZE", to_object.outputs["Vector"])
+    p = coords.outputs["Object"]  # the hit point in the instance's unit-sphere space
+    along = math.vector("DOT_PRODUCT", p, view, out="Value")
+    # squared distance of the ray from the centre: |p|^2 - (p . v)^2
+    d2 = math.scalar("SUBTRACT", math.vector("DOT_PRODUCT", p, p, out="Value"),
+                     math.scalar("MULTIPLY", along, along))
+    falloff = math.scalar("EXPONENT", math.scalar("MULTIPLY", d2, -0.5 * SIGMA_EXTENT ** 2))
+    opacity = _instancer_attribute(nodes, "opacity").outputs["Fac"]
+    front = math.scalar("SUBTRACT", 1.0, geometry.outputs["Backfacing"])
+    alpha = math.scalar("MULTIPLY", math.scalar("MULTIPLY", falloff, opacity), front)
+
+    colour = _instancer_attribute(nodes, "colour")
+    view_colour = _instancer_attribute(nodes, "colour_view")
+    pick = nodes.new("ShaderNodeMix")  # colour_view where present (its alpha is 1, else 0)
+    pick.data_type = "RGBA"
+    links.new(view_colour.outputs["Alpha"], pick.inputs["Factor"])
+    links.new(colour.outputs["Color"], pick.inputs["A"])
+    links.new(view_colour.outputs["Color"], pick.inputs["B"])
+    emission = nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 1.0
+    links.new(pick.outputs["Result"], emission.inputs["Color"])
+    transparent = nodes.new("ShaderNodeBsdfTransparent")
+    mix = nodes.new("ShaderNodeMixShader")
+    links.new(alpha, mix.inputs["Fac"])
+    links.new(transparent.outputs["BSDF"], mix.inputs[1])
+    links.new(emission.outputs["Emission"], mix.inputs[2])
+    output = nodes.new("ShaderNodeOutputMaterial")
+    links.new(mix.outputs["Shader"], output.inputs["Surface"])
+    _arrange(list(nodes))
+    return mat
+
+
+def _instancer_attribute(nodes, name: str):
+    node = nodes.new("ShaderNodeAttribute")
+    node.attribute_type = "INSTANCER"
+    node.attribute_name = name
+    return node
+
+
+class _MathBuilder:
+    """Math and Vector Math nodes from socket-or-constant operands."""
+
+    def __init__(self, nodes, links):
+        self.nodes, self.links = nodes, links
+
+    def _node(self, kind: str, operation: str, operands, out: str):
+        node = self.nodes.new(kind)
+        node.operation = operation
+        for socket, operand in zip(node.inputs, operands, strict=False):
+            if isinstance(operand, bpy.types.NodeSocket):
+                self.links.new(operand, socket)
+            else:
+                socket.default_value = operand
+        return node.outputs[out]
+
+    def scalar(self, operation: str, *operands):
+        return self._node("ShaderNodeMath", operation, operands, "Value")
+
+    def vector(self, operation: str, *operands, out: str = "Vector"):
+        return self._node("ShaderNodeVectorMath", operation, operands, out)
+
+
+def _arrange(nodes) -> None:
+    """Spread nodes left to right so the editor shows them untangled."""
+    for i, node in enumerate(nodes):
+        node.location = (220.0 * (i % 8), -180.0 * (i // 8))

@@ -1,0 +1,85 @@
+"""Read what the scene says about an avatar at the current frame: the FLAME codes the head
+carries (expression shape keys, bone rotations, root location), its level of detail, the
+camera. Values come from the evaluated depsgraph, so keyframes, drivers and NLA all count,
+in the viewport and in renders (whose depsgraph never writes back to the original data).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
+from ..archhead_addon.flame.model import JOINT_NAMES
+
+
+def head_rig(head):
+    """The armature that carries the head's bones (its parent, as the import builds it)."""
+    rig = head.parent
+    if rig is None or rig.type != "ARMATURE":
+        raise ValueError(f"'{head.name}' is not an imported ArchHead head (no rig parent)")
+    return rig
+
+
+def expression_values(head, depsgraph, n_expr: int) -> np.ndarray:
+    """The values of expr_000 .. expr_{n-1} (a muted or missing key counts as 0)."""
+    key = head.data.shape_keys
+    out = np.zeros(n_expr)
+    if key is None or n_expr == 0:
+        return out
+    blocks = key.evaluated_get(depsgraph).key_blocks
+    values = np.empty(len(blocks), np.float32)
+    blocks.foreach_get("value", values)
+    muted = np.empty(len(blocks), bool)
+    blocks.foreach_get("mute", muted)
+    for i in range(n_expr):
+        j = blocks.find(f"expr_{i:03d}")
+        if j >= 0 and not muted[j]:
+            out[i] = values[j]
+    return out
+
+
+def frame_codes(head, depsgraph, joint_dirs: np.ndarray) -> FrameCodes:
+    rig = head_rig(head).evaluated_get(depsgraph)
+    basis = np.array([np.array(rig.pose.bones[name].matrix_basis) for name in JOINT_NAMES])
+    rotations = basis[:, :3, :3] / np.linalg.norm(basis[:, :3, :3], axis=1, keepdims=True)
+    n_expr = min(int(head.get("archhead_n_expr", 0)), len(joint_dirs))
+    return codes_from_rig(rotations, basis[0, :3, 3], expression_values(head, depsgraph, n_expr),
+                          joint_dirs)
+
+
+def avatar_lod(obj, depsgraph) -> float:
+    return float(obj.evaluated_get(depsgraph).archhead_avatar.lod)
+
+
+def camera_in_object(obj, scene, depsgraph):
+    """The scene camera's centre in the object's own space (FLAME space), or None."""
+    if scene.camera is None:
+        return None
+    camera = np.array(scene.camera.evaluated_get(depsgraph).matrix_world)
+    world = np.array(obj.evaluated_get(depsgraph).matrix_world)
+    return (np.linalg.inv(world) @ camera[:, 3])[:3]
+
+
+def _fcurves(id_data):
+    anim = id_data.animation_data if id_data is not None else None
+    if anim is None or anim.action is None:
+        return []
+    action = anim.action
+    if not getattr(action, "layers", None):  # a classic action (before Blender 4.4)
+        return list(action.fcurves)
+    out = []
+    for layer in action.layers:
+        for strip in layer.strips:
+            bag = strip.channelbag(anim.action_slot) if anim.action_slot else None
+            out.extend(bag.fcurves if bag else [])
+    return out
+
+
+def keyed_frames(*ids) -> set[float]:
+    """Frames that carry a key on any F-curve of these IDs (rig, shape keys, avatar)."""
+    frames: set[float] = set()
+    for fc in (fc for id_data in ids for fc in _fcurves(id_data)):
+        co = np.empty(2 * len(fc.keyframe_points), np.float32)
+        fc.keyframe_points.foreach_get("co", co)
+        frames.update(co[0::2].tolist())
+    return frames

@@ -1,0 +1,116 @@
+"""Render the avatar's point instances with Cycles (and EEVEE) next to the exact splat image of
+the same Gaussians from the same camera (the pictures and PSNR in docs/blender_avatar.md).
+
+    .venv/bin/python tests/blender/render_avatar_pair.py --out docs/ [--size 256]
+        [--samples 64] [--eevee]
+
+The avatar is an untrained one of the built-in model (its initialisation, seed 0), on the demo
+head at frame 12, view-dependent colour on, at LOD 0 and LOD 1. Each row: Blender's render,
+the exact splat render, and their absolute difference x4, all over the same grey. Both
+renders go through the batch path (operators/batch_render.py) that the command line uses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(REPO), str(REPO / "operators")]
+from script_import import enable_addon  # noqa: E402
+
+from archhead_addon.io.atomic import write_bytes_atomic  # noqa: E402
+from archhead_addon.sequences import write_canonical  # noqa: E402
+from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
+from archhead_addon.synthetic.png import encode_png  # noqa: E402
+
+FRAME = 12
+GREY = 0.12
+
+
+def _rgba(path: Path) -> np.ndarray:
+    image = bpy.data.images.load(str(path))
+    try:
+        w, h = image.size
+        return np.array(image.pixels[:], np.float32).reshape(h, w, 4)[::-1]
+    finally:
+        bpy.data.images.remove(image)
+
+
+def _over_grey(rgba: np.ndarray) -> np.ndarray:
+    return rgba[..., :3] * rgba[..., 3:] + GREY * (1 - rgba[..., 3:])
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    return float(10 * np.log10(1.0 / np.mean((a - b) ** 2)))
+
+
+def main(argv) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=REPO / "docs")
+    parser.add_argument("--size", type=int, default=256)
+    parser.add_argument("--samples", type=int, default=64)
+    parser.add_argument("--eevee", action="store_true", help="add EEVEE (slow without a GPU)")
+    args = parser.parse_args(argv)
+
+    import torch
+
+    from archhead_addon.avatar.checkpoint import save_avatar
+    from archhead_addon.avatar.model import ArchHeadAvatar
+    from archhead_addon.flame import load_model
+
+    module = enable_addon()
+    batch = importlib.import_module(f"{module}.operators.batch_render")
+    folder = Path(tempfile.mkdtemp(prefix="archhead_pair_"))
+    torch.manual_seed(0)
+    save_avatar(folder / "avatar.npz", ArchHeadAvatar.create(load_model()))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    write_canonical(demo_sequence(frames=FRAME + 1, image_size=(args.size, args.size)),
+                    folder / "demo.npz")
+    bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
+    bpy.context.view_layer.objects.active = bpy.data.objects["demo"]
+    bpy.ops.archhead.load_avatar(filepath=str(folder / "avatar.npz"))
+    bpy.data.objects["demo_avatar"].archhead_avatar.view_dependent = True
+    scene = bpy.context.scene
+    r = scene.render
+    r.film_transparent, r.threads_mode, r.threads = True, "FIXED", 2
+    r.image_settings.file_format, r.image_settings.color_mode = "PNG", "RGBA"
+    r.image_settings.color_depth = "8"
+    scene.view_settings.view_transform = "Standard"
+    scene.cycles.samples, scene.cycles.use_denoising = args.samples, False
+    scene.cycles.use_adaptive_sampling = False
+    scene.eevee.taa_render_samples = args.samples
+
+    engines = ["CYCLES"] + (["BLENDER_EEVEE"] if args.eevee else [])
+    rows = []
+    for lod in (0.0, 1.0):
+        start = time.perf_counter()
+        (exact_path,) = batch.render_frames(bpy.context, [FRAME], folder / f"exact_{lod:g}",
+                                            lod=lod, exact=True)
+        exact = _over_grey(_rgba(exact_path))
+        print(f"LOD {lod:g}: exact splat {time.perf_counter() - start:.1f} s")
+        for engine in engines:
+            r.engine = engine
+            start = time.perf_counter()
+            (path,) = batch.render_frames(bpy.context, [FRAME], folder / f"{engine}_{lod:g}",
+                                          lod=lod)
+            image = _over_grey(_rgba(path))
+            print(f"LOD {lod:g}: {engine} {time.perf_counter() - start:.1f} s, "
+                  f"PSNR against the exact splat {psnr(image, exact):.2f} dB")
+            rows.append(np.concatenate([image, exact, np.clip(4 * np.abs(image - exact), 0, 1)],
+                                       axis=1))
+    picture = np.concatenate(rows, axis=0)
+    name = "avatar_cycles_vs_splat.png" if len(engines) == 1 else "avatar_engines_vs_splat.png"
+    write_bytes_atomic(args.out / name, encode_png(np.round(picture * 255).astype(np.uint8)))
+    print(f"wrote {args.out / name}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])

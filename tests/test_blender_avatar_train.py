@@ -1,0 +1,82 @@
+"""The training operator on tiny real runs of the backend: a run to the end loads its avatar
+onto the head; a cancelled run stops on SIGINT with a saved checkpoint; the log stays."""
+
+import importlib
+import json
+import time
+
+import bpy
+import numpy as np
+import pytest
+from avatar_env import demo_scene
+
+from archhead_addon.avatar.checkpoint_format import read_checkpoint
+from archhead_addon.sequences import read_sequence, write_canonical
+from archhead_addon.synthetic.png import encode_png
+
+TINY = {"lods_per_step": 2, "checkpoint_every": 1000,
+        "avatar": {"s_max": 64, "s_min": 32, "levels": [64, 32], "feature_dim": 16}}
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("train")
+    addon, head, seq = demo_scene(folder, frames=3)
+    video = folder / "video"  # frames and tracking apart: the operator assembles the data
+    video.mkdir()
+    for t in range(len(seq)):
+        (video / f"img_{t}.png").write_bytes(encode_png(np.full((32, 32, 3), 60 + 50 * t,
+                                                                np.uint8)))
+    write_canonical(seq, folder / "track.npz")
+    config = folder / "tiny.json"
+    config.write_text(json.dumps(TINY))
+    module = importlib.import_module(f"{addon.__name__}.operators.train_operator")
+    return {"folder": folder, "head": head, "video": video, "config": config, "ops": module}
+
+
+def test_training_operator_runs_and_loads_the_avatar(setup):
+    out = setup["folder"] / "run"
+    bpy.context.view_layer.objects.active = setup["head"]
+    result = bpy.ops.archhead.train_avatar(
+        frames_dir=str(setup["video"]), tracking=str(setup["folder"] / "track.npz"),
+        out_dir=str(out), resolution=32, stage1_steps=2, stage2_steps=1,
+        base_config=str(setup["config"]))
+    assert result == {"FINISHED"}
+    ckpt = read_checkpoint(out / "avatar.npz")
+    assert ckpt.config.s_max == 64 and ckpt.config.levels == (64, 32)
+    avatar = bpy.data.objects[f"{setup['head'].name}_avatar"]
+    assert bpy.path.abspath(avatar.archhead_avatar.checkpoint) == str(out / "avatar.npz")
+    assert len(avatar.data.vertices) > 0
+    log = (out / "train.log").read_text()
+    assert "--progress-json" in log and '"event": "done"' in log and "[exit code 0]" in log
+    request = json.loads((out / "train_request.json").read_text())
+    assert request["stage1_steps"] == 2 and request["avatar"]["s_max"] == 64
+    staged = out / "data"
+    assert (staged / "frames").resolve() == setup["video"].resolve()
+    assert len(read_sequence(staged / "tracking.npz")) == 3
+    assert setup["ops"].current_run() is None
+
+
+def test_cancel_stops_cleanly_with_a_checkpoint(setup):
+    ops = setup["ops"]
+    out = setup["folder"] / "cancelled"
+    settings = {**TINY, "resolution": 32, "stage1_steps": 200, "stage2_steps": 0}
+    run = ops.start_training(bpy.context, setup["video"], setup["folder"] / "track.npz", out,
+                             settings, head_name=setup["head"].name)
+    assert ops.current_run() is run
+    deadline = time.monotonic() + 120
+    while run.step < 1:  # what the modal operator's timer does: poll, never wait
+        assert not run.update(), (out / "train.log").read_text()[-2000:]
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    assert 0 < run.fraction < 1 and "ETA" in run.summary() and "loss" in run.loss_text()
+    run.backend.cancel()
+    while not run.update():
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    kind, message = ops.finish_training(bpy.context, run)
+    assert kind == "INFO" and message.startswith("Stopped"), message
+    assert run.backend.returncode == 130  # the backend's status for a run stopped by SIGINT
+    assert 1 <= run.step < 200
+    assert '"event": "interrupted"' in (out / "train.log").read_text()
+    assert read_checkpoint(out / "avatar.npz").config.s_max == 64

@@ -1,0 +1,135 @@
+"""Evaluation: the metrics on hand-made images, and the command line on a tiny subject
+(tables, plot, LOD montage, cross-identity reenactment through the driver's own camera)."""
+
+import csv
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from training_subject import SIZE, tiny_subject
+
+from archhead_addon.avatar.checkpoint import save_avatar
+from archhead_addon.avatar.config import AvatarConfig
+from archhead_addon.avatar.model import ArchHeadAvatar
+from archhead_addon.avatar.runtime import AvatarRuntime
+from archhead_addon.evaluate.__main__ import main
+from archhead_addon.evaluate.metrics import (
+    SSIM_C1,
+    SSIM_C2,
+    gaussian_window,
+    l1,
+    psnr,
+    ssim,
+)
+from archhead_addon.evaluate.render import render_frame
+from archhead_addon.flame.model import load_model
+from archhead_addon.sequences import read_sequence, write_canonical
+from archhead_addon.train.dataset import FrameDataset
+
+
+def test_l1_and_psnr_of_a_constant_offset():
+    a = torch.zeros(8, 8, 3)
+    assert l1(a + 0.1, a) == pytest.approx(0.1)
+    assert psnr(a + 0.1, a) == pytest.approx(20.0)  # MSE 0.01
+    assert psnr(a, a) == math.inf
+
+
+def test_gaussian_window_is_normalised_with_sigma_one_and_a_half():
+    w = gaussian_window().numpy()
+    assert w.shape == (11, 11) and w.sum() == pytest.approx(1.0)
+    assert w[5, 5] / w[5, 6] == pytest.approx(math.exp(1 / (2 * 1.5**2)))  # sigma 1.5
+    assert w[5, 5] / w[6, 6] == pytest.approx(math.exp(2 / (2 * 1.5**2)))  # separable
+    assert np.array_equal(w, w.T)
+
+
+def test_ssim_of_flat_images_is_the_luminance_term():
+    a, b = torch.full((16, 16, 3), 0.2), torch.full((16, 16, 3), 0.6)
+    assert ssim(a, b) == pytest.approx((2 * 0.2 * 0.6 + SSIM_C1) / (0.2**2 + 0.6**2 + SSIM_C1))
+    assert ssim(a, a) == pytest.approx(1.0)
+
+
+def test_ssim_of_one_window_by_hand():
+    rng = np.random.default_rng(0)
+    x, y = rng.random((11, 11, 1)), rng.random((11, 11, 1))
+    w = gaussian_window().numpy()[..., None]
+    mx, my = (w * x).sum(), (w * y).sum()
+    vx, vy = (w * (x - mx) ** 2).sum(), (w * (y - my) ** 2).sum()
+    cxy = (w * (x - mx) * (y - my)).sum()
+    expected = ((2 * mx * my + SSIM_C1) * (2 * cxy + SSIM_C2)
+                / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2)))
+    assert ssim(torch.from_numpy(x), torch.from_numpy(y)) == pytest.approx(expected, rel=1e-9)
+    noisy = torch.from_numpy(np.clip(x + 0.1 * rng.normal(size=x.shape), 0, 1))
+    assert ssim(torch.from_numpy(x), noisy) == pytest.approx(ssim(noisy, torch.from_numpy(x)))
+    with pytest.raises(ValueError, match="11"):
+        ssim(torch.zeros(8, 8, 3), torch.zeros(8, 8, 3))
+
+
+@pytest.fixture(scope="module")
+def subject(tmp_path_factory):
+    return tiny_subject(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def avatar_file(tmp_path_factory):
+    """A small untrained avatar, with random feature maps (so every level differs)."""
+    torch.manual_seed(0)
+    config = AvatarConfig(s_max=32, s_min=8, levels=(32, 16, 8), feature_dim=8, hidden=16,
+                          colour_hidden=16, mapping_hidden=16)
+    path = tmp_path_factory.mktemp("avatar") / "avatar.npz"
+    save_avatar(path, ArchHeadAvatar.create(load_model(), config=config))
+    return path
+
+
+def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path, capsys):
+    # the driver: the subject's own tracking, stored for images twice the size
+    seq = read_sequence(subject / "tracking.npz")
+    double = replace(seq, K=np.diag([2.0, 2.0, 1.0]) @ seq.K, image_size=(2 * SIZE, 2 * SIZE))
+    write_canonical(double, tmp_path / "driver.npz")
+    out = tmp_path / "eval"
+    assert main(["--avatar", str(avatar_file), "--data", str(subject), "--out", str(out),
+                 "--resolution", str(SIZE), "--drive", str(tmp_path / "driver.npz"),
+                 "--drive-frames", "8"]) == 0
+    assert "| LOD 1 vs LOD 0 (fp32) |" in capsys.readouterr().out
+
+    rows = list(csv.DictReader((out / "metrics.csv").open()))
+    assert [(float(r["lod"]), r["precision"]) for r in rows] == [
+        (lod, p) for p in ("fp32", "fp16") for lod in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    counts = [int(r["gaussians"]) for r in rows[:5]]
+    assert counts == sorted(counts, reverse=True) and counts[-1] > 0
+    for a, b in zip(rows[:5], rows[5:], strict=True):  # fp16 decodes almost alike
+        assert int(a["gaussians"]) == int(b["gaussians"])
+        assert abs(float(a["psnr"]) - float(b["psnr"])) < 0.05
+    for r in rows:
+        assert 0 < float(r["l1"]) < 1 and 0 < float(r["ssim"]) <= 1 and float(r["render_ms"]) > 0
+
+    model = load_model()
+    test = FrameDataset(subject, SIZE, model, split="test")
+    item = test[0]
+    image = render_frame(AvatarRuntime.load(avatar_file, model), 0.0, item["codes"], item["K"],
+                         item["w2c"], test.size, test.background).rgb
+    rows0 = rows[0]
+    assert float(rows0["psnr"]) == pytest.approx(
+        10 * math.log10(1 / np.mean((np.clip(image, 0, 1) - item["image"]) ** 2)), rel=1e-4)
+
+    montage = np.asarray(Image.open(out / "lods.png"))
+    assert montage.shape == (SIZE, 6 * SIZE, 3)  # truth, then five levels
+    assert Image.open(out / "error_vs_time.png").size[0] > 500
+
+    driven = sorted((out / "reenact").iterdir())
+    assert len(driven) == 8
+    # the last tracked frame is the test frame: the driver's camera, scaled back to 48 px,
+    # must give the evaluation's own render of it
+    last = np.asarray(Image.open(driven[-1]), np.float32) / 255
+    assert np.abs(last - np.clip(image, 0, 1)).max() <= 1 / 255 + 1e-6
+
+
+def test_bad_arguments_are_refused(subject, avatar_file, tmp_path, capsys):
+    assert main(["--avatar", str(avatar_file), "--data", str(subject), "--out",
+                 str(tmp_path)]) == 2  # no training config beside the avatar
+    assert "--resolution" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--avatar", str(avatar_file), "--data", str(subject), "--out", str(tmp_path),
+              "--lods", "0,2"])

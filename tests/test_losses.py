@@ -1,0 +1,126 @@
+"""The paper's loss terms (eq. 6-7) on hand-made inputs, and ST-LPIPS against its package."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from archhead_addon.avatar.gaussians import Gaussians
+from archhead_addon.train.config import LossWeights
+from archhead_addon.train.losses import (
+    TrainingLoss,
+    huber,
+    offset_norm,
+    parts_huber,
+    scale_norm,
+    scale_weight,
+)
+from archhead_addon.train.perceptual import ShiftTolerantLPIPS
+
+
+@pytest.fixture(scope="module")
+def st_lpips():
+    return ShiftTolerantLPIPS()
+
+
+def gaussians(offsets, scales):
+    n = len(offsets)
+    return Gaussians(means=torch.zeros(n, 3), log_scales=torch.log(torch.tensor(scales)),
+                     quats=torch.tensor([[1.0, 0, 0, 0]] * n), opacity_logits=torch.zeros(n),
+                     sh=torch.zeros(n, 16, 3), offsets=torch.tensor(offsets),
+                     uv_texel=torch.arange(n), resolution=4)
+
+
+def test_huber_is_quadratic_below_delta_and_linear_above():
+    pred = torch.tensor([0.05, 0.3, -0.2, 0.0])
+    target = torch.zeros(4)
+    # 0.5 * 0.05², 0.1 * (0.3 - 0.05), 0.1 * (0.2 - 0.05), 0
+    expected = (0.00125 + 0.025 + 0.015 + 0.0) / 4
+    assert float(huber(pred, target, 0.1)) == pytest.approx(expected, rel=1e-6)
+    assert float(huber(pred, target, 1.0)) == pytest.approx(
+        0.5 * (0.05**2 + 0.3**2 + 0.2**2) / 4, rel=1e-6)
+
+
+def test_parts_term_counts_only_masked_pixels_averaged_over_the_whole_image():
+    target = torch.zeros(2, 2, 3)
+    pred = torch.zeros(2, 2, 3)
+    pred[0, 0] = 0.05  # inside the mask: 0.5 * 0.05² per channel
+    pred[1, 1] = 0.9  # outside: ignored
+    parts = torch.tensor([[1.0, 0.0], [0.0, 0.0]])
+    assert float(parts_huber(pred, target, parts, 0.1)) == pytest.approx(
+        3 * 0.5 * 0.05**2 / 12, rel=1e-6)
+
+
+def test_offset_and_scale_terms_are_mean_l2_norms():
+    g = gaussians(offsets=[[3.0, 4.0, 0.0], [0.0, 0.0, 0.0]], scales=[[1.0, 2.0, 2.0],
+                                                                     [0.0, 0.0, 1.0]])
+    assert float(offset_norm(g.offsets)) == pytest.approx(2.5)
+    assert float(scale_norm(g.log_scales)) == pytest.approx(2.0)  # (3 + 1) / 2
+
+
+def test_scale_weight_halves_from_the_densest_to_the_sparsest_level():
+    w = LossWeights()
+    assert (w.parts, w.lpips, w.offset, w.scale) == (20.0, 0.05, 0.001, 0.5)  # the paper's
+    assert scale_weight(w, 0.0) == 0.5
+    assert scale_weight(w, 0.5) == 0.375
+    assert scale_weight(w, 1.0) == 0.25
+
+
+def test_total_is_the_weighted_sum_of_eq_6():
+    weights = LossWeights(parts=20.0, lpips=0.0, offset=0.001, scale=0.5, huber_delta=0.1)
+    target = torch.zeros(2, 2, 3)
+    pred = torch.full((2, 2, 3), 0.05)
+    parts = torch.tensor([[1.0, 1.0], [0.0, 0.0]])
+    g = gaussians([[3.0, 4.0, 0.0]], [[1.0, 2.0, 2.0]])
+    total, terms = TrainingLoss(weights)(pred, target, parts, g, lod=1.0)
+    rgb = 0.5 * 0.05**2
+    expected = rgb + 20 * rgb / 2 + 0.001 * 5.0 + 0.25 * 3.0
+    assert float(total) == pytest.approx(expected, rel=1e-6)
+    assert terms["rgb"] == pytest.approx(rgb, rel=1e-6)
+    assert terms["parts"] == pytest.approx(rgb / 2, rel=1e-6)
+    assert terms["total"] == pytest.approx(expected, rel=1e-6)
+    assert "lpips" not in terms
+
+
+def test_gradient_reaches_the_render_and_the_gaussians(st_lpips):
+    pred = torch.full((40, 40, 3), 0.3, requires_grad=True)
+    target = torch.rand(40, 40, 3, generator=torch.Generator().manual_seed(0))
+    g = gaussians([[0.01, 0.0, 0.0]], [[0.01, 0.01, 0.01]])
+    g.offsets.requires_grad_(True)
+    total, terms = TrainingLoss(LossWeights(), st_lpips)(pred, target, torch.ones(40, 40), g,
+                                                         lod=0.0)
+    total.backward()
+    assert terms["lpips"] > 0
+    assert pred.grad.abs().sum() > 0 and g.offsets.grad.abs().sum() > 0
+
+
+def reference_images(h=64, w=80):
+    yy, xx = np.mgrid[0:h, 0:w] / np.array([h, w])[:, None, None]
+    a = np.stack([0.5 + 0.4 * np.sin(7 * xx + 3 * yy), 0.5 + 0.4 * np.cos(5 * yy - 2 * xx),
+                  xx * yy], 0)
+    b = np.roll(a, 1, axis=2) * 0.9 + 0.05
+    c = a + 0.1 * np.sin(40 * xx)[None]
+    return [torch.tensor(x[None], dtype=torch.float32).clamp(0, 1) for x in (a, b, c)]
+
+
+def test_st_lpips_matches_the_package_implementation(st_lpips):
+    # computed with stlpips_pytorch 0.0.2's own code:
+    # stlpips.LPIPS(net="alex", variant="shift_tolerant")(x, y, normalize=True)
+    expected = [0.006129368208348751, 0.1363798975944519, 0.14596176147460938]
+    a, b, c = reference_images()
+    with torch.no_grad():
+        got = [float(st_lpips(a, b)), float(st_lpips(a, c)), float(st_lpips(b, c))]
+        assert float(st_lpips(a, a)) == 0.0
+    assert got == pytest.approx(expected, rel=1e-5)
+    # tolerant of a one-pixel shift (b), not of a stripe pattern (c)
+    assert got[0] < got[1] / 10
+
+
+def test_st_lpips_rejects_small_or_mismatched_images(st_lpips):
+    with pytest.raises(ValueError, match="32x32"):
+        st_lpips(torch.zeros(1, 3, 16, 16), torch.zeros(1, 3, 16, 16))
+    with pytest.raises(ValueError, match="two"):
+        st_lpips(torch.zeros(1, 3, 40, 40), torch.zeros(1, 3, 40, 41))
+    assert not any(p.requires_grad for p in st_lpips.parameters())
+    assert math.isfinite(float(st_lpips(torch.zeros(1, 3, 32, 32), torch.ones(1, 3, 32, 32))))

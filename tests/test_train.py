@@ -1,0 +1,160 @@
+"""Training end to end on a tiny synthetic subject: the loss falls, the checkpoint decodes and
+renders in the numpy runtime; the two stages; exact resume; the config file and CLI errors."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from training_subject import TINY_CONFIG, tiny_subject, write_config
+
+from archhead_addon.avatar.runtime import AvatarRuntime
+from archhead_addon.evaluate.render import render_frame
+from archhead_addon.flame.model import load_model
+from archhead_addon.train.__main__ import main
+from archhead_addon.train.config import TrainConfig
+from archhead_addon.train.dataset import FrameDataset
+from archhead_addon.train.loop import STATE_FILE, Trainer, frames_on_device, load_state
+
+
+@pytest.fixture(scope="module")
+def subject(tmp_path_factory):
+    return tiny_subject(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()
+
+
+@pytest.fixture(scope="module")
+def dataset(subject, model):
+    return FrameDataset(subject, TINY_CONFIG["resolution"], model, split="train")
+
+
+def trainer(dataset, model, out, **changes) -> Trainer:
+    config = TrainConfig.from_dict({**TINY_CONFIG, **changes})
+    frames = frames_on_device(dataset, torch.device("cpu"))
+    return Trainer.create(config, frames, model, dataset.sequence.shape[0], out,
+                          dataset.background, torch.device("cpu"))
+
+
+def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(subject, dataset, tmp_path,
+                                                              capsys):
+    out = tmp_path / "run"
+    rc = main(["--data", str(subject), "--out", str(out), "--config",
+               str(write_config(tmp_path / "tiny.json")), "--progress-json"])
+    assert rc == 0
+    events = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert events[0]["event"] == "start" and events[0]["renderer"] == "cpu"
+    assert events[-1]["event"] == "done" and events[-1]["step"] == 32
+    steps = [e for e in events if e["event"] == "step"]
+    assert [e["step"] for e in steps] == list(range(1, 33))
+    assert {"stage", "step", "total", "loss", "seconds_per_step", "eta_seconds"} <= set(steps[0])
+    assert steps[-1]["eta_seconds"] == 0 and steps[0]["eta_seconds"] > 0
+    assert [e["step"] for e in events if e["event"] == "checkpoint"] == list(range(4, 33, 4))
+    stage1 = [e["loss"]["rgb"] for e in steps if e["stage"] == 1]
+    assert len(stage1) == 24 and np.mean(stage1[-4:]) < 0.7 * np.mean(stage1[:4])
+    assert all(e["lods"] == [0.0] for e in steps if e["stage"] == 1)
+    for e in steps[24:]:  # stage 2: one level in each half of [0, 1]
+        low, high = e["lods"]
+        assert 0 <= low < 0.5 <= high < 1
+    assert ("lpips" in steps[0]["loss"]) and ("lpips" not in steps[1]["loss"])  # every 2nd
+
+    runtime = AvatarRuntime.load(out / "avatar.npz")
+    item = dataset[0]
+    frames = {lod: render_frame(runtime, lod, item["codes"], item["K"], item["w2c"],
+                                dataset.size, dataset.background) for lod in (0.0, 1.0)}
+    assert frames[0.0].gaussians > frames[1.0].gaussians > 0
+    for frame in frames.values():
+        assert np.isfinite(frame.rgb).all()
+        error = torch.nn.functional.huber_loss(torch.from_numpy(frame.rgb),
+                                               torch.from_numpy(item["image"]), delta=0.1)
+        assert float(error) < 0.8 * np.mean(stage1[:4])  # the trained avatar, not the first
+
+
+def test_stage_two_freezes_the_mapping_network(dataset, model, tmp_path):
+    t = trainer(dataset, model, tmp_path, stage1_steps=1, stage2_steps=2)
+    t.train_step()
+    mapping = [p.detach().clone() for p in t.avatar.mapping.parameters()]
+    decoder = [p.detach().clone() for p in t.avatar.decoder.parameters()]
+    features = [p.detach().clone() for p in t.avatar.features.parameters()]
+    t.train_step()
+    t.train_step()
+    assert all(torch.equal(a, b) for a, b in zip(mapping, t.avatar.mapping.parameters(),
+                                                  strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(decoder, t.avatar.decoder.parameters(),
+                                                      strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(features, t.avatar.features.parameters(),
+                                                      strict=True))
+
+
+def test_schedule_lods_frames_and_learning_rate(dataset, model, tmp_path):
+    t = trainer(dataset, model, tmp_path, stage1_steps=4, stage2_steps=100, lods_per_step=5)
+    assert t.lods(3) == [0.0]
+    for step in (4, 50, 103):
+        lods = t.lods(step)
+        assert [int(5 * lod) for lod in lods] == [0, 1, 2, 3, 4]  # one per fifth of [0, 1]
+        assert lods == t.lods(step)  # a function of the step
+    n = len(dataset)
+    assert sorted(t.frame_index(s) for s in range(n)) == list(range(n))  # an epoch
+    assert t.learning_rate_factor(0) == 1.0
+    assert t.learning_rate_factor(104) == pytest.approx(TINY_CONFIG.get("lr_final_ratio", 0.1))
+
+
+def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
+    changes = {"stage1_steps": 3, "stage2_steps": 3, "checkpoint_every": 100}
+    straight = trainer(dataset, model, tmp_path / "a", **changes)
+    for _ in range(6):
+        straight.train_step()
+
+    first = trainer(dataset, model, tmp_path / "b", **changes)
+    for _ in range(4):
+        first.train_step()
+    first.save()
+    state = load_state(tmp_path / "b" / STATE_FILE)
+    assert state["step"] == 4
+    frames = frames_on_device(dataset, torch.device("cpu"))
+    resumed = Trainer.resume(state, tmp_path / "b", frames, model, dataset.background,
+                             torch.device("cpu"))
+    resumed.train_step()
+    resumed.train_step()
+    for (name, a), b in zip(straight.avatar.state_dict().items(),
+                            resumed.avatar.state_dict().values(), strict=True):
+        assert torch.equal(a, b), name
+
+
+def test_presets_load_and_bad_configs_are_named(tmp_path):
+    cpu, gpu = TrainConfig.load("cpu"), TrainConfig.load("gpu_paper")
+    assert gpu.lods_per_step == 5 and (gpu.stage1_steps, gpu.stage2_steps) == (15000, 30000)
+    assert gpu.avatar_config(100).levels == (256, 128, 64)
+    assert (gpu.loss.parts, gpu.loss.lpips, gpu.loss.offset, gpu.loss.scale) == (
+        20.0, 0.05, 0.001, 0.5)
+    assert cpu.resolution == 256 and cpu.device == "auto"
+    assert TrainConfig.from_dict(json.loads(cpu.to_json())) == cpu
+    for bad, message in (({"stage1_step": 3}, "stage1_step"),
+                         ({"loss": {"lpip": 1}}, "lpip"),
+                         ({"avatar": {"s_maxx": 3}}, "s_maxx"),
+                         ({"avatar": {"s_min": 300}}, "s_min"),
+                         ({"resolution": 16}, "32")):
+        path = tmp_path / "bad.json"
+        path.write_text(json.dumps(bad))
+        with pytest.raises(ValueError, match=message):
+            TrainConfig.load(path)
+
+
+def test_cli_refuses_to_overwrite_or_resume_nothing(subject, tmp_path, capsys):
+    config = str(write_config(tmp_path / "tiny.json"))
+    out = tmp_path / "run"
+    assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2
+    assert "nothing to resume" in capsys.readouterr().err
+    (out / STATE_FILE).parent.mkdir(parents=True)
+    (out / STATE_FILE).write_bytes(b"")
+    assert main(["--data", str(subject), "--out", str(out), "--config", config]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2
+    assert "unreadable training state" in capsys.readouterr().err
+    assert main(["--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "r2"),
+                 "--config", config, "--progress-json"]) == 2
+    error = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert error["event"] == "error" and "nowhere" in error["message"]
