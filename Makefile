@@ -1,5 +1,6 @@
 # The two commands of the README: `make setup` installs everything into .venv,
-# `make test` lints and runs the whole suite. `make demo` runs the main job.
+# `make test` lints and runs the whole suite. `make demo` runs the demo
+# (operators/script_demo.py: subject, short training, import, LOD driver, clip, .blend).
 PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
@@ -16,4 +17,4 @@ test:
 	$(BIN)/python -m pytest
 
 demo:
-	$(BIN)/python operators/script_import.py demo out/demo.blend
+	$(BIN)/python -m archhead_addon demo --out out/demo

@@ -9,8 +9,10 @@ exits with status 2 and one `error:` line; input warnings print as `warning:` li
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 from .io.errors import InputError, InputWarning
 from .sequences import FORMAT_NAMES, read_sequence, write_canonical
@@ -39,7 +41,21 @@ def _convert(args) -> int:
     return 0
 
 
-COMMANDS = (_add_convert,)
+def _add_demo(commands) -> None:
+    p = commands.add_parser("demo", help="the whole pipeline on the built-in head (bpy module)",
+                            description="Synthetic subject, short training (or --checkpoint), "
+                            "import, decode, LOD driver on a dolly-in camera, clip, contact "
+                            "sheet, .blend: operators/script_demo.py, whose options it takes.")
+    p.set_defaults(run=_demo, passes_on=True)  # every other argument goes to the script
+
+
+def _demo(args) -> int:
+    # A child process: bpy loads Blender's whole runtime, which this light CLI stays without.
+    script = Path(__file__).resolve().parents[1] / "operators" / "script_demo.py"
+    return subprocess.run([sys.executable, str(script), *args.options]).returncode
+
+
+COMMANDS = (_add_convert, _add_demo)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
@@ -52,7 +68,10 @@ def main(argv=None) -> int:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in COMMANDS:
         add(commands)
-    args = parser.parse_args(argv)
+    args, rest = parser.parse_known_args(argv)
+    if rest and not getattr(args, "passes_on", False):
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    args.options = rest
     with warnings.catch_warnings():
         warnings.simplefilter("always", InputWarning)
         warnings.showwarning = _show_warning

@@ -1,6 +1,7 @@
 """Benchmark: what a change of the avatar's level of detail costs in Blender.
 
     python operators/bench_lod.py [--repeats 10] [--checkpoint AVATAR.npz]
+                                  [--sweep STEP --json FILE]
 
 Runs with 2 BLAS / OpenMP threads (restarting itself with them set). Imports the demo head,
 loads an avatar (the checkpoint given, else an untrained one of the built-in model, which
@@ -8,13 +9,16 @@ needs torch to create; the decode cost does not depend on the weights), then tim
 change: the slider moved within one UV resolution (its tables cached), the first visit of a
 resolution (tables built), a scrub across the whole range, and a frame change served from
 the memory cache. "total" is the property change to an evaluated depsgraph: handler (decode
-+ writing the points) and Geometry Nodes instancing. Prints a markdown table.
++ writing the points) and Geometry Nodes instancing. Prints a markdown table. With --sweep,
+times only "total" at l = 0, STEP, ..., 1 (each resolution's tables built first) and writes
+them to the --json file (the report of `python -m archhead_addon.bench` reads it).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import os
 import sys
 import tempfile
@@ -47,7 +51,12 @@ def main(argv) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--checkpoint", help="avatar checkpoint (default: an untrained one)")
+    parser.add_argument("--sweep", type=float, help="time LOD changes at every multiple of "
+                        "this step only")
+    parser.add_argument("--json", help="with --sweep: the file to write the timings to")
     args = parser.parse_args(argv)
+    if (args.sweep is None) != (args.json is None):
+        parser.error("--sweep and --json go together")
 
     import bpy
 
@@ -83,6 +92,17 @@ def main(argv) -> None:
     def near(lod):
         """A value not shown before (no cached frame) with the resolution of `lod`."""
         return lod + (1e-6 if lod == 0.0 else -1e-6) * next(fresh)
+
+    if args.sweep is not None:
+        rows = []
+        for i in range(round(1 / args.sweep) + 1):
+            lod = round(i * args.sweep, 6)
+            set_lod(lod)  # builds this resolution's tables
+            total = _ms(lambda i, lod=lod: set_lod(near(lod)), args.repeats)
+            rows.append({"lod": lod, "resolution": runtime.resolution(lod),
+                         "points": len(obj.data.vertices), "update_ms": total})
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+        return
 
     rows = []
     for lod in (0.0, 1.0):

@@ -12,7 +12,7 @@ from training_subject import REPO_ROOT, tiny_subject, write_config
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.train.loop import STATE_FILE, load_state
 
-TOTAL = 60
+TOTAL = 40
 
 
 @pytest.fixture(scope="module")

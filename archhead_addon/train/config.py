@@ -18,7 +18,7 @@ from pathlib import Path
 from ..avatar.config import AvatarConfig
 
 CONFIG_DIR = Path(__file__).parent / "configs"
-PRESETS = ("cpu", "gpu_paper")
+PRESETS = ("cpu", "gpu_paper", "demo")
 
 
 @dataclass(frozen=True)
@@ -41,12 +41,12 @@ class LearningRates:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    resolution: int = 256  # training images are resized to this many pixels a side
+    resolution: int = 256  # training images are resized to this longer side (pixels)
     stage1_steps: int = 1000  # LOD 0, everything trains
     stage2_steps: int = 500  # several LODs per step, mapping network frozen
     lods_per_step: int = 5
     lr: LearningRates = field(default_factory=LearningRates)
-    lr_final_ratio: float = 0.1  # each stage decays its rates exponentially to this fraction
+    lr_final_ratio: float = 0.1  # the rates decay exponentially over the run to this fraction
     loss: LossWeights = field(default_factory=LossWeights)
     # The perceptual term on every k-th step only, weighted k x λ_lpips there (an unbiased
     # estimate of the full term): ST-LPIPS costs more than the avatar on the CPU.
@@ -101,7 +101,7 @@ class TrainConfig:
 
     @classmethod
     def load(cls, path) -> TrainConfig:
-        """A config file, or a preset name ('cpu', 'gpu_paper'). ValueError names the file."""
+        """A config file, or a preset name (PRESETS). ValueError names the file."""
         path = CONFIG_DIR / f"{path}.json" if str(path) in PRESETS else Path(path)
         try:
             return cls.from_dict(json.loads(Path(path).read_text()))

@@ -169,8 +169,8 @@ class Trainer:
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
         sums: dict[str, float] = {}
-        k = cfg.lpips_every
-        lpips_weight = cfg.loss.lpips * k if step % k == 0 else 0.0
+        every = cfg.lpips_every
+        lpips_weight = cfg.loss.lpips * every if step % every == 0 else 0.0
         for lod in lods:
             rgb, g = self.render(frame, lod)
             total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight)

@@ -47,26 +47,27 @@ def format_seconds(seconds: float) -> str:
 
 
 class Progress:
-    def __init__(self, json_lines: bool, out=None, err=None):
+    def __init__(self, json_lines: bool):
         self.json_lines = json_lines
-        self.out, self.err = out or sys.stdout, err or sys.stderr
+        self.out, self.err = sys.stdout, sys.stderr
         self.tty = self.err.isatty()
         self._last_line = 0.0
 
-    def event(self, kind: str, **fields) -> None:
+    def _json(self, record: dict) -> None:
         if self.json_lines:
-            self.out.write(json.dumps({"event": kind, **fields}) + "\n")
+            self.out.write(json.dumps(record) + "\n")
             self.out.flush()
 
+    def event(self, kind: str, **fields) -> None:
+        self._json({"event": kind, **fields})
+
     def step(self, report: StepReport) -> None:
-        if self.json_lines:
-            self.out.write(json.dumps(report.to_json()) + "\n")
-            self.out.flush()
+        self._json(report.to_json())
         every = max(1, report.total // LINES_WITHOUT_TTY)
         if self.tty:
             if time.monotonic() - self._last_line > 0.1 or report.step == report.total:
                 self._last_line = time.monotonic()
-                self.err.write("\r" + self.bar(report))
+                self.err.write("\r" + self.bar(report) + "\x1b[K")  # erase the old line's rest
                 self.err.flush()
         elif report.step % every == 0 or report.step == report.total:
             self.err.write(self.bar(report) + "\n")

@@ -1,0 +1,51 @@
+"""The ablations of the paper's table 4: the avatar without a feature map and with a single
+map of 64, 128 or 256, each trained with the same config and the same number of steps as the
+full multi-level field, by the project's training command in a child process."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from ..train.config import TrainConfig
+
+VARIANTS = {"full (multi-level)": None, "no feature map": [], "single map 64": [64],
+            "single map 128": [128], "single map 256": [256]}
+
+
+def variant_config(base: TrainConfig, levels: list[int] | None, steps: int) -> dict:
+    """`base` with the feature levels replaced (None keeps them) and `steps` split between
+    the two stages in the base's proportion."""
+    config = asdict(base)
+    if levels is not None:
+        config["avatar"] = {**config["avatar"], "levels": levels}
+    stage1 = math.ceil(steps * base.stage1_steps / base.total_steps)
+    config["stage1_steps"], config["stage2_steps"] = stage1, steps - stage1
+    config["checkpoint_every"] = max(steps, 1)
+    return config
+
+
+def train_variants(base: TrainConfig, steps: int, data: Path, out: Path,
+                   python: str = sys.executable) -> dict[str, tuple[Path, float]]:
+    """{variant: (avatar checkpoint, training seconds)}; a variant's earlier run in its folder
+    is replaced; its log goes to train.log there."""
+    done = {}
+    for name, levels in VARIANTS.items():
+        folder = out / name.split(" (")[0].replace(" ", "_")
+        for stale in ("train_state.pt", "avatar.npz"):
+            (folder / stale).unlink(missing_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
+        config = folder / "ablation_config.json"
+        config.write_text(json.dumps(variant_config(base, levels, steps)))
+        start = time.perf_counter()
+        with open(folder / "train.log", "w") as log:
+            subprocess.run([python, "-m", "archhead_addon.train", "--data", str(data), "--out",
+                            str(folder), "--config", str(config)], check=True, stdout=log,
+                           stderr=subprocess.STDOUT)
+        done[name] = (folder / "avatar.npz", time.perf_counter() - start)
+    return done
