@@ -11,10 +11,9 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
-import warnings
 from pathlib import Path
 
-from .io.errors import InputError, InputWarning
+from .io.cli import run_command
 from .sequences import FORMAT_NAMES, read_sequence, write_canonical
 
 
@@ -58,10 +57,6 @@ def _demo(args) -> int:
 COMMANDS = (_add_convert, _add_demo)
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    print(f"warning: {message}", file=sys.stderr)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m archhead_addon",
                                      description="ArchHead command line tools.")
@@ -72,14 +67,7 @@ def main(argv=None) -> int:
     if rest and not getattr(args, "passes_on", False):
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     args.options = rest
-    with warnings.catch_warnings():
-        warnings.simplefilter("always", InputWarning)
-        warnings.showwarning = _show_warning
-        try:
-            return args.run(args)
-        except InputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+    return run_command(lambda: args.run(args))
 
 
 if __name__ == "__main__":

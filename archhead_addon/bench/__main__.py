@@ -25,11 +25,10 @@ import subprocess
 import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
 
 from ..io.atomic import write_bytes_atomic
-from ..io.errors import InputError, InputWarning
+from ..io.cli import run_command
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 FIGURES = ("error_vs_time.png", "lod_smoothness.png")
@@ -157,18 +156,13 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # for the report's header
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train/__main__.py
-    with warnings.catch_warnings():
-        warnings.simplefilter("always", InputWarning)
-        warnings.showwarning = lambda message, *rest: print(f"warning: {message}",
-                                                            file=sys.stderr)
-        try:
-            path = run(args)
-        except InputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-    print(path.read_text())
-    print(f"report: {path}")
-    return 0
+
+    def report():
+        path = run(args)
+        print(path.read_text())
+        print(f"report: {path}")
+
+    return run_command(report)
 
 
 if __name__ == "__main__":

@@ -18,10 +18,10 @@ import argparse
 import json
 import os
 import sys
-import warnings
 from pathlib import Path
 
-from ..io.errors import InputError, InputWarning
+from ..io.cli import run_command
+from ..io.errors import InputError
 
 
 def _lods(text: str) -> list[float]:
@@ -107,15 +107,7 @@ def evaluate(args) -> int:
 def main(argv=None) -> int:
     args = parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train/__main__.py
-    with warnings.catch_warnings():
-        warnings.simplefilter("always", InputWarning)
-        warnings.showwarning = lambda message, *rest: print(f"warning: {message}",
-                                                            file=sys.stderr)
-        try:
-            return evaluate(args)
-        except InputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+    return run_command(lambda: evaluate(args))
 
 
 if __name__ == "__main__":
