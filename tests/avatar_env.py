@@ -67,3 +67,13 @@ def positions(obj) -> np.ndarray:
     co = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.vertices.foreach_get("co", co)
     return co.reshape(-1, 3)
+
+
+def load_rgba(path) -> np.ndarray:
+    """An image file as (H,W,4) float32 RGBA, top row first, read through Blender."""
+    image = bpy.data.images.load(str(path))
+    try:
+        w, h = image.size
+        return np.array(image.pixels[:], np.float32).reshape(h, w, 4)[::-1]
+    finally:
+        bpy.data.images.remove(image)

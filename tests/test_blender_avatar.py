@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 from addon_env import REPO_ROOT
-from avatar_env import demo_scene, load_avatar, tiny_checkpoint
+from avatar_env import demo_scene, load_avatar, load_rgba, tiny_checkpoint
 from bpy_extras.anim_utils import action_get_channelbag_for_slot
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
@@ -257,11 +257,11 @@ def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
                              str(blend), "--frames", "2", "--lod", "0.5", "--exact", "--out",
                              str(out)], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
-    exact = _png(out / "frame_0002.png")
+    exact = load_rgba(out / "frame_0002.png")
     assert exact[..., 3].max() > 0.99 and exact[..., 3].min() == 0.0
     cycles_files = _batch(avatar).render_frames(
         bpy.context, [2], tmp_path / "cycles", lod=0.5)
-    cycles = _png(cycles_files[0])
+    cycles = load_rgba(cycles_files[0])
     psnr = 10 * np.log10(1.0 / np.mean((_over_black(cycles) - _over_black(exact)) ** 2))
     print(f"PSNR Cycles / exact splat: {psnr:.1f} dB")
     assert psnr > 24.0, psnr
@@ -279,15 +279,6 @@ def _small_cycles(scene, samples):
 
 def _over_black(rgba):
     return rgba[..., :3] * rgba[..., 3:]
-
-
-def _png(path):
-    image = bpy.data.images.load(str(path))
-    try:
-        w, h = image.size
-        return np.array(image.pixels[:], np.float32).reshape(h, w, 4)[::-1]
-    finally:
-        bpy.data.images.remove(image)
 
 
 def test_avatar_load_refuses_a_mismatched_checkpoint(avatar, tmp_path):

@@ -23,7 +23,8 @@ import bpy
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(REPO), str(REPO / "operators")]
+sys.path[:0] = [str(REPO), str(REPO / "operators"), str(REPO / "tests")]
+from avatar_env import load_rgba  # noqa: E402
 from script_import import enable_addon  # noqa: E402
 
 from archhead_addon.io.atomic import write_bytes_atomic  # noqa: E402
@@ -33,15 +34,6 @@ from archhead_addon.synthetic.png import encode_png  # noqa: E402
 
 FRAME = 12
 GREY = 0.12
-
-
-def _rgba(path: Path) -> np.ndarray:
-    image = bpy.data.images.load(str(path))
-    try:
-        w, h = image.size
-        return np.array(image.pixels[:], np.float32).reshape(h, w, 4)[::-1]
-    finally:
-        bpy.data.images.remove(image)
 
 
 def _over_grey(rgba: np.ndarray) -> np.ndarray:
@@ -94,14 +86,14 @@ def main(argv) -> None:
         start = time.perf_counter()
         (exact_path,) = batch.render_frames(bpy.context, [FRAME], folder / f"exact_{lod:g}",
                                             lod=lod, exact=True)
-        exact = _over_grey(_rgba(exact_path))
+        exact = _over_grey(load_rgba(exact_path))
         print(f"LOD {lod:g}: exact splat {time.perf_counter() - start:.1f} s")
         for engine in engines:
             r.engine = engine
             start = time.perf_counter()
             (path,) = batch.render_frames(bpy.context, [FRAME], folder / f"{engine}_{lod:g}",
                                           lod=lod)
-            image = _over_grey(_rgba(path))
+            image = _over_grey(load_rgba(path))
             print(f"LOD {lod:g}: {engine} {time.perf_counter() - start:.1f} s, "
                   f"PSNR against the exact splat {psnr(image, exact):.2f} dB")
             rows.append(np.concatenate([image, exact, np.clip(4 * np.abs(image - exact), 0, 1)],
