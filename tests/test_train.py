@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from synthetic_models import random_model
 from training_subject import TINY_CONFIG, tiny_subject, write_config
 
 from archhead_addon.avatar.runtime import AvatarRuntime
@@ -56,9 +57,7 @@ def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(subject, dataset, t
     stage1 = [e["loss"]["rgb"] for e in steps if e["stage"] == 1]
     assert len(stage1) == 24 and np.mean(stage1[-4:]) < 0.7 * np.mean(stage1[:4])
     assert all(e["lods"] == [0.0] for e in steps if e["stage"] == 1)
-    for e in steps[24:]:  # stage 2: one level in each half of [0, 1]
-        low, high = e["lods"]
-        assert 0 <= low < 0.5 <= high < 1
+    assert all(e["lods"] == [0.0, 1.0] for e in steps[24:])  # stage 2, two levels: the ends
     assert ("lpips" in steps[0]["loss"]) and ("lpips" not in steps[1]["loss"])  # every 2nd
 
     runtime = AvatarRuntime.load(out / "avatar.npz")
@@ -94,12 +93,19 @@ def test_schedule_lods_frames_and_learning_rate(dataset, model, tmp_path):
     assert t.lods(3) == [0.0]
     for step in (4, 50, 103):
         lods = t.lods(step)
-        assert [int(5 * lod) for lod in lods] == [0, 1, 2, 3, 4]  # one per fifth of [0, 1]
+        assert lods[0] == 0.0 and lods[-1] == 1.0  # both ends, one level per third between
+        assert [int(3 * lod) for lod in lods[1:-1]] == [0, 1, 2] and 0 < lods[1]
         assert lods == t.lods(step)  # a function of the step
+    assert len({tuple(t.lods(step)) for step in range(4, 104)}) == 100
     n = len(dataset)
     assert sorted(t.frame_index(s) for s in range(n)) == list(range(n))  # an epoch
-    assert t.learning_rate_factor(0) == 1.0
-    assert t.learning_rate_factor(104) == pytest.approx(TINY_CONFIG.get("lr_final_ratio", 0.1))
+    final = TINY_CONFIG.get("lr_final_ratio", 0.1)
+    assert t.learning_rate_factor(0) == 1.0 == t.learning_rate_factor(4)  # each stage restarts
+    assert t.learning_rate_factor(2) == pytest.approx(final ** 0.5)
+    assert t.learning_rate_factor(104) == pytest.approx(final)
+    one = trainer(dataset, model, tmp_path, stage1_steps=0, stage2_steps=10, lods_per_step=1)
+    assert len({len(one.lods(s)) for s in range(10)}) == 1
+    assert len({one.lods(s)[0] for s in range(10)}) == 10
 
 
 def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
@@ -122,6 +128,13 @@ def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
     for (name, a), b in zip(straight.avatar.state_dict().items(),
                             resumed.avatar.state_dict().values(), strict=True):
         assert torch.equal(a, b), name
+
+
+    other = random_model()  # resuming with another FLAME model is refused by name
+    with pytest.raises(ValueError, match=f"started on the FLAME model '{model.model_id}', "
+                                         f"resumed with '{other.model_id}'"):
+        Trainer.resume(state, tmp_path / "b", frames, other, dataset.background,
+                       torch.device("cpu"))
 
 
 def test_presets_load_and_bad_configs_are_named(tmp_path):

@@ -2,10 +2,16 @@
 
 Stage 1 (`stage1_steps`): every step renders one training frame at LOD 0 and trains the
 feature field, the mapping network and the decoder. Stage 2 (`stage2_steps`): every step
-renders the same frame at `lods_per_step` levels drawn in [0, 1] (stratified: one in each of
-n equal bins, so every step spans the range), accumulates their gradients (each loss / n) and
-updates the feature field and the decoder; the mapping network is frozen. The learning rates
-decay exponentially over the whole run to `lr_final_ratio` of their start.
+renders the same frame at `lods_per_step` levels in [0, 1], accumulates their gradients (each
+loss / n) and updates the feature field and the decoder; the mapping network is frozen.
+The levels of a stage-2 step are both ends, 0 and 1, and n - 2 random ones in between
+(stratified: one in each of n - 2 equal bins of (0, 1)); one level per step is drawn in
+[0, 1]. The ends are always in: the sparsest level is the hardest (its Gaussians must grow to
+cover what sixteen did at LOD 0) and the densest the one most used, and with three levels per
+step, drawing all three at random left LOD 1 far behind (docs/training.md).
+The learning rates decay exponentially within each stage, from their start to
+`lr_final_ratio` of it: stage 2 starts at the full rates again, because its new task, the
+sparse levels, needs them (at the decayed rates of one run-long schedule they barely moved).
 
 Randomness is a function of (seed, step) alone: the frame order (a permutation per epoch)
 and the stage-2 levels. The step is therefore the whole random state, and a resumed run takes
@@ -83,12 +89,20 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def stage2_cost_ratio(s_max: int, s_min: int) -> float:
-    """Mean Gaussian count of a level drawn uniformly in [0, 1], as a fraction of LOD 0's:
-    the integral of (1 - (1 - r) l)^2 over l, r = s_min / s_max. Scales the first estimate
-    of a stage-2 step's time from stage 1's."""
+def stage2_lods(n: int, u) -> list[float]:
+    """The levels of a stage-2 step (module docstring) from n uniform numbers u in [0, 1)."""
+    if n == 1:
+        return [float(u[0])]
+    return [0.0] + [float((k + u[k]) / (n - 2)) for k in range(n - 2)] + [1.0]
+
+
+def stage2_cost_ratio(s_max: int, s_min: int, n: int) -> float:
+    """Gaussians rendered in a stage-2 step of n levels, as a multiple of LOD 0's count: the
+    ends count 1 and r^2 (r = s_min / s_max), a random level the mean of (1 - (1 - r) l)^2
+    over l, (1 + r + r^2) / 3. Prices stage 2 from stage 1's time until it has its own."""
     r = s_min / s_max
-    return (1 + r + r * r) / 3
+    random_level = (1 + r + r * r) / 3
+    return random_level if n == 1 else 1 + r * r + (n - 2) * random_level
 
 
 class Trainer:
@@ -120,10 +134,20 @@ class Trainer:
 
     @classmethod
     def resume(cls, state: dict, out_dir, frames, model, background, device) -> Trainer:
-        """The run as its last checkpoint (`load_state`) left it."""
+        """The run as its last checkpoint (`load_state`) left it. ValueError when `model` is
+        not the FLAME model the run was started with."""
+        trained_on = state.get("model_id")
+        if trained_on is not None and trained_on != model.model_id:
+            raise ValueError(f"{Path(out_dir) / STATE_FILE}: model_id: the run was started on "
+                             f"the FLAME model '{trained_on}', resumed with '{model.model_id}' "
+                             "(pass the same --flame as the run's first session)")
         avatar = ArchHeadAvatar(avatar_mesh(model), state["model"]["identity_shape"].numpy(),
                                 AvatarConfig.from_json(state["avatar_config"]), model.model_id)
-        avatar.load_state_dict(state["model"], strict=True)
+        try:
+            avatar.load_state_dict(state["model"], strict=True)
+        except RuntimeError as exc:  # a state of another model size (no model_id: version 1)
+            raise ValueError(f"{Path(out_dir) / STATE_FILE}: model: the saved weights do not "
+                             f"fit the FLAME model '{model.model_id}' ({exc})") from exc
         trainer = cls(state_config(state), frames, avatar.to(device), out_dir, background,
                       device)
         trainer.optimizer.load_state_dict(state["optimizer"])
@@ -141,11 +165,14 @@ class Trainer:
         if self.config.stage(step) == 1:
             return [0.0]
         n = self.config.lods_per_step
-        u = np.random.default_rng([self.config.seed, 1 << 20, step]).random(n)
-        return [float((k + u[k]) / n) for k in range(n)]
+        return stage2_lods(n, np.random.default_rng([self.config.seed, 1 << 20, step]).random(n))
 
     def learning_rate_factor(self, step: int) -> float:
-        return self.config.lr_final_ratio ** (step / self.config.total_steps)
+        """1 at the start of each stage, decaying exponentially to lr_final_ratio at its end."""
+        cfg = self.config
+        start, length = ((0, cfg.stage1_steps) if cfg.stage(step) == 1
+                         else (cfg.stage1_steps, cfg.stage2_steps))
+        return cfg.lr_final_ratio ** ((step - start) / length)
 
     # -- one step -------------------------------------------------------------------------
 
@@ -193,7 +220,7 @@ class Trainer:
         s1, s2 = self._rate[1], self._rate[2]
         if s2 is None and s1 is not None:
             a = self.avatar.config
-            s2 = s1 * cfg.lods_per_step * stage2_cost_ratio(a.s_max, a.s_min)
+            s2 = s1 * stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step)
         return left1 * (s1 or 0.0) + left2 * (s2 or 0.0)
 
     # -- files ----------------------------------------------------------------------------
@@ -202,6 +229,7 @@ class Trainer:
         """Write the training state, then the avatar checkpoint; returns the avatar's path."""
         state = {"format": STATE_FORMAT, "version": STATE_VERSION, "step": self.step,
                  "elapsed": self.elapsed, "config": self.config.to_json(),
+                 "model_id": self.avatar.base_model_id,
                  "avatar_config": self.avatar.config.to_json(),
                  "model": {k: v.detach().cpu() for k, v in self.avatar.state_dict().items()},
                  "optimizer": _to_cpu(self.optimizer.state_dict())}
