@@ -2,16 +2,16 @@
 
     python -m archhead_addon.bench [--avatar out/run_cpu/avatar.npz] [--data out/subject256]
         [--out out/report] [--docs DIR] [--step 0.05] [--test-frames N] [--no-blender]
-        [--ablations --steps N [--ablation-config F]]
+        [--ablations [--steps N] [--ablation-config F]]
 
 Per level of detail (steps of --step): Gaussians, numpy decode ms (fp32, fp16), the splat
 kernel's ms at 512², Blender's update ms for a LOD change (operators/bench_lod.py --sweep, in a
 child process through the bpy module), test L1 / PSNR / SSIM / ST-LPIPS; the error-against-
 run-time curve; the image change between neighbouring levels; the LOD 1 : LOD 0 ratios beside
 the paper's; the stability sweep; with --ablations, table 4's variants trained by the project's
-training command with the same config and --steps each. Writes OUT/report.md,
-OUT/error_vs_time.png and OUT/lod_smoothness.png; --docs copies them there (the report as
-bench_report.md).
+training command with the same config and the same steps each (--steps, default the config's
+total). Writes OUT/report.md, OUT/error_vs_time.png and OUT/lod_smoothness.png; --docs copies
+them there (the report as bench_report.md).
 """
 
 from __future__ import annotations
@@ -52,7 +52,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--no-blender", action="store_true", help="leave out Blender's update ms")
     p.add_argument("--ablations", action="store_true", help="train and evaluate table 4's "
                    "variants (no feature map, single maps 64 / 128 / 256, and the full field)")
-    p.add_argument("--steps", type=int, default=6000, help="training steps of every variant")
+    p.add_argument("--steps", type=int, help="training steps of every variant (default: the "
+                   "config's total)")
     p.add_argument("--ablation-config", default="cpu", help="their common training config "
                    "(file or preset; default: cpu)")
     args = p.parse_args(argv)
@@ -131,16 +132,17 @@ def run(args) -> Path:
     ]
     if args.ablations:
         base = TrainConfig.load(args.ablation_config)
-        trained = ablations.train_variants(base, args.steps, args.data, args.out / "ablations")
+        steps = args.steps or base.total_steps
+        trained = ablations.train_variants(base, steps, args.data, args.out / "ablations")
         results = {name: (evaluate_lods(AvatarRuntime.load(path, model), frames, test.size,
                                         test.background, perceptual, report.ABLATION_LODS,
                                         ("fp32",)), seconds)
                    for name, (path, seconds) in trained.items()}
         sections.append(
             f"## Ablations (table 4)\n\nEvery variant trained with config "
-            f"`{args.ablation_config}` and {args.steps} steps (the stages in the config's "
+            f"`{args.ablation_config}` and {steps} steps (the stages in the config's "
             "proportion), evaluated on the same test frames. The paper's numbers are its own "
-            "subjects at its full GPU budget.\n\n" + report.ablation_table(results, args.steps))
+            "subjects at its full GPU budget.\n\n" + report.ablation_table(results, steps))
     sections.append(f"Report time: {time.perf_counter() - start:.0f} s.")
     path = args.out / "report.md"
     write_bytes_atomic(path, ("\n\n".join(sections) + "\n").encode())
