@@ -9,17 +9,25 @@ outlives the grace time, so a caller that polls from a timer never blocks.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import queue
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the folder that holds archhead_addon/
 CANCEL_GRACE_S = 60.0  # SIGINT -> terminate -> kill, each after this long
+
+
+def python_with_torch() -> str | None:
+    """This process's Python when it can import torch (the bpy module installed in an
+    environment with torch), else None: Blender's bundled Python has no torch."""
+    return sys.executable if importlib.util.find_spec("torch") is not None else None
 
 
 def train_command(python: str, data_dir, out_dir, config=None, resume: bool = False) -> list:

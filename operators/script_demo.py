@@ -16,7 +16,7 @@ and how long each step took.
 from __future__ import annotations
 
 import argparse
-import importlib.util
+import importlib
 import json
 import subprocess
 import sys
@@ -32,6 +32,7 @@ REPO_ROOT = HERE.parent
 sys.path[:0] = [str(REPO_ROOT), str(HERE)]
 from script_import import enable_addon  # noqa: E402  (a sibling script, not a package module)
 
+from archhead_addon.backend_process import python_with_torch, train_command  # noqa: E402
 from archhead_addon.flame import load_model  # noqa: E402
 from archhead_addon.sequences import write_canonical  # noqa: E402
 from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
@@ -61,14 +62,11 @@ class Steps:
 def backend_python() -> str:
     """This Python when it has torch (the bpy module in the project's environment), else the
     project's .venv (Blender's own Python has no torch)."""
-    if importlib.util.find_spec("torch") is not None:
-        return sys.executable
-    return str(REPO_ROOT / ".venv" / "bin" / "python")
+    return python_with_torch() or str(REPO_ROOT / ".venv" / "bin" / "python")
 
 
 def train_avatar(data: Path, out: Path, config: str) -> Path:
-    command = [backend_python(), "-m", "archhead_addon.train", "--data", str(data), "--out",
-               str(out), "--config", config]
+    command = train_command(backend_python(), data, out, config)
     print("demo: " + " ".join(command), flush=True)
     log = out.parent / "train.log"
     out.parent.mkdir(parents=True, exist_ok=True)

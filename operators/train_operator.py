@@ -7,15 +7,18 @@ stays in the output folder; the finished checkpoint is loaded onto the head.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 import time
 from pathlib import Path
 
 import bpy
 
-from ..archhead_addon.backend_process import BackendRun, format_eta, train_command
+from ..archhead_addon.backend_process import (
+    BackendRun,
+    format_eta,
+    python_with_torch,
+    train_command,
+)
 from ..archhead_addon.io.errors import InputError
 from ..archhead_addon.sequences import read_sequence, write_canonical
 from ..panels.preferences import get_preferences
@@ -87,8 +90,9 @@ def backend_python(context) -> str:
     prefs = get_preferences(context)
     if prefs and prefs.backend_python:
         return bpy.path.abspath(prefs.backend_python)
-    if importlib.util.find_spec("torch") is not None:
-        return sys.executable
+    python = python_with_torch()
+    if python is not None:
+        return python
     raise ValueError("set 'Backend Python' in ArchHead's preferences to the Python of an "
                      "environment with torch")
 

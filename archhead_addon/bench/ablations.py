@@ -12,6 +12,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+from ..backend_process import train_command
 from ..train.config import TrainConfig
 
 VARIANTS = {"full (multi-level)": None, "no feature map": [], "single map 64": [64],
@@ -44,8 +45,7 @@ def train_variants(base: TrainConfig, steps: int, data: Path, out: Path,
         config.write_text(json.dumps(variant_config(base, levels, steps)))
         start = time.perf_counter()
         with open(folder / "train.log", "w") as log:
-            subprocess.run([python, "-m", "archhead_addon.train", "--data", str(data), "--out",
-                            str(folder), "--config", str(config)], check=True, stdout=log,
-                           stderr=subprocess.STDOUT)
+            subprocess.run(train_command(python, data, folder, config), check=True,
+                           stdout=log, stderr=subprocess.STDOUT)
         done[name] = (folder / "avatar.npz", time.perf_counter() - start)
     return done
