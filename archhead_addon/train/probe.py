@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import math
 import os
 import sys
 import time
@@ -108,11 +107,10 @@ def widen(avatar, hidden: int, colour_hidden: int):
 def mean_psnr(trainer, frames, lod: float) -> float:
     import torch
 
-    values = []
+    from ..evaluate.metrics import psnr
+
     with torch.no_grad():
-        for f in frames:
-            rgb = trainer.render(f, lod)[0].clamp(0, 1)
-            values.append(-10 * math.log10(max(float(((rgb - f.image) ** 2).mean()), 1e-12)))
+        values = [psnr(trainer.render(f, lod)[0].clamp(0, 1), f.image) for f in frames]
     return sum(values) / len(values)
 
 
@@ -147,8 +145,8 @@ def make_trainer(args):
         frames = [frames[args.frame]]
     trainer = _probe_class().resume(state, args.run, frames, model, train.background, device)
     if args.widen:
-        trainer = _probe_class()(config, frames, widen(trainer.avatar, *args.widen), args.run,
-                         train.background, device)
+        wide = widen(trainer.avatar, *args.widen)
+        trainer = _probe_class()(config, frames, wide, args.run, train.background, device)
         trainer.step = int(state["step"])
     trainer.levels, trainer.lr_scale = args.levels, args.lr_scale
     trainer.step = max(trainer.step, config.stage1_steps)  # stage 2: the mapping stays frozen
