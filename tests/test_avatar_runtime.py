@@ -53,6 +53,16 @@ def test_numpy_runtime_matches_torch_for_ablations(tmp_path, name):
     _assert_agree(avatar, runtime, 0.37, frame_codes(seed=4))
 
 
+@pytest.mark.parametrize("octaves", [0, 6])
+def test_numpy_runtime_matches_torch_for_other_pe_octaves(tmp_path, octaves):
+    avatar = make_avatar(ablation("full", n_expr=100, pe_freqs=octaves), seed=5)
+    assert avatar.decoder.first.in_features == 3 + 6 * octaves + 64 + 20 + 1
+    save_avatar(tmp_path / "a.npz", avatar)
+    runtime = AvatarRuntime.load(tmp_path / "a.npz", flame=sphere_head())
+    assert runtime.config.pe_freqs == octaves
+    _assert_agree(avatar, runtime, 0.6, frame_codes(seed=6))
+
+
 def test_runtime_never_imports_torch(saved):
     _, path, head = saved
     script = textwrap.dedent(f"""

@@ -13,8 +13,6 @@ from dataclasses import asdict, dataclass, fields, replace
 SH_DEGREE = 3
 # the five decoder heads and their raw output widths, in decoding order
 HEADS = {"offset": 3, "scale": 3, "rotation": 4, "opacity": 1, "colour": 3 * (SH_DEGREE + 1) ** 2}
-N_FREQS = 12
-PE_DIM = 3 + 2 * 3 * N_FREQS  # 75: the position, then sin and cos of 12 octaves
 JAW_DIM, EYES_DIM = 3, 6
 QUAT_EPS = 1e-8  # below this norm a raw quaternion is replaced by the identity
 
@@ -28,6 +26,7 @@ class AvatarConfig:
     tau: float = 0.35  # blend temperature of eq. 5
     n_expr: int = 100  # expression codes the mapping network reads
     drive_dim: int = 20  # K
+    pe_freqs: int = 12  # octaves of the positional encoding (finest period 2 pi / 2^(n-1) m)
     mapping_hidden: int = 128
     hidden: int = 32  # hidden width of the offset, scale, rotation and opacity heads
     colour_hidden: int = 64  # hidden width of the colour head (48 SH outputs, most detail)
@@ -45,14 +44,20 @@ class AvatarConfig:
         if len(set(self.levels)) != len(self.levels) or any(s < 1 for s in self.levels):
             raise ValueError(f"feature levels must be distinct positive sizes: {self.levels}")
         if self.tau <= 0 or self.head_layers < 1 or self.log_scale_min >= self.log_scale_max \
-                or min(self.hidden, self.colour_hidden, self.feature_dim, self.drive_dim) < 1:
-            raise ValueError("need tau > 0, head_layers >= 1, positive widths and "
-                             "log_scale_min < log_scale_max")
+                or min(self.hidden, self.colour_hidden, self.feature_dim, self.drive_dim) < 1 \
+                or self.pe_freqs < 0:
+            raise ValueError("need tau > 0, head_layers >= 1, positive widths, pe_freqs >= 0 "
+                             "and log_scale_min < log_scale_max")
+
+    @property
+    def pe_dim(self) -> int:
+        """The position, then the sine and cosine of each octave: 75 for 12 octaves."""
+        return 3 + 2 * 3 * self.pe_freqs
 
     @property
     def in_dim(self) -> int:
         """Decoder input per texel: PE (75) | feature (64, if any) | drive (K) | l."""
-        return PE_DIM + (self.feature_dim if self.levels else 0) + self.drive_dim + 1
+        return self.pe_dim + (self.feature_dim if self.levels else 0) + self.drive_dim + 1
 
     def head_width(self, name: str) -> int:
         return self.colour_hidden if name == "colour" else self.hidden

@@ -10,8 +10,9 @@ offsets and rotations move with the head.
 
 Choices (the paper leaves them to its supplement):
 - Positional encoding: p = position - pe_centre in metres (pe_centre: the centre of the
-  identity's bounding box), then [p, sin(2^k p), cos(2^k p)] for k = 0..11: the finest period,
-  2 pi / 2048 m = 3 mm, is about two texels of the 256 map on the face.
+  identity's bounding box), then [p, sin(2^k p), cos(2^k p)] for k = 0..pe_freqs - 1 (12 by
+  default): the finest period, 2 pi / 2048 m = 3 mm, is about two texels of the 256 map on
+  the face.
 - Mapping network M: Linear(n_expr + 9, 128), ReLU, Linear(128, K), tanh. The tanh bounds the
   driving code, so extreme expression and pose codes cannot drive the decoder outside the range
   it was trained on (with the bounded PE and l, every decoder input is then bounded).
@@ -48,7 +49,7 @@ from ..flame.model import FlameModel
 from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
 from ..uv.layout import avatar_mesh
 from ..uv.raster import UVRaster, face_texel_scale, position_map
-from .config import HEADS, N_FREQS, QUAT_EPS, AvatarConfig
+from .config import HEADS, QUAT_EPS, AvatarConfig
 from .gaussians import SH_C0, Gaussians, quat_multiply
 from .lod import blend_weights, resolution_for_lod
 
@@ -97,7 +98,7 @@ class ArchHeadAvatar(nn.Module):
         self.face_scale = face_texel_scale(mesh.v_template, mesh.faces, mesh.uv, mesh.uv_faces)
         self.register_buffer("identity_shape",
                              torch.as_tensor(np.asarray(identity_shape), dtype=torch.float32))
-        self.register_buffer("freqs", 2.0 ** torch.arange(N_FREQS, dtype=torch.float32),
+        self.register_buffer("freqs", 2.0 ** torch.arange(config.pe_freqs, dtype=torch.float32),
                              persistent=False)
         self.register_buffer("pe_centre", torch.tensor(config.pe_centre, dtype=torch.float32),
                              persistent=False)

@@ -25,7 +25,7 @@ from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
 from ..uv.raster import UVRaster, face_texel_scale
 from .bicubic import resize
 from .checkpoint_format import AvatarCheckpoint, checkpoint_mesh, read_checkpoint
-from .config import EYES_DIM, HEADS, JAW_DIM, N_FREQS, PE_DIM, QUAT_EPS
+from .config import EYES_DIM, HEADS, JAW_DIM, QUAT_EPS
 from .gaussians import Gaussians, quat_multiply
 from .lod import blend_weights, resolution_for_lod
 
@@ -44,7 +44,7 @@ class AvatarRuntime:
                                            self.mesh.uv_faces)
         self.features = {s: ckpt.params[f"features.{s}"] for s in cfg.levels}
         self.pe_centre = np.asarray(cfg.pe_centre, F32)
-        self.freqs = (2.0 ** np.arange(N_FREQS)).astype(F32)
+        self.freqs = (2.0 ** np.arange(cfg.pe_freqs)).astype(F32)
         self._nets = {p: _Network(ckpt.params, cfg, half=p == "fp16") for p in PRECISIONS}
         self.level = functools.lru_cache(maxsize=max_cached)(self._build_level)
 
@@ -103,16 +103,16 @@ class AvatarRuntime:
                          uv_texel=level["texel"], resolution=size)
 
     def _encode(self, pos: np.ndarray) -> np.ndarray:
-        """(PE_DIM + 1, N) float32 from positions (3, N): p, sin(2^k p), cos(2^k p) (k-major,
+        """(pe_dim + 1, N) float32 from positions (3, N): p, sin(2^k p), cos(2^k p) (k-major,
         then x, y, z), and a row of ones that carries the first layer's per-frame bias."""
-        n = pos.shape[1]
-        out = np.empty((PE_DIM + 1, n), F32)
+        n, k = pos.shape[1], 3 * len(self.freqs)
+        out = np.empty((3 + 2 * k + 1, n), F32)
         p = out[:3]
         np.subtract(pos, self.pe_centre[:, None], out=p)
         a = (self.freqs[:, None, None] * p[None]).reshape(-1, n)
-        np.sin(a, out=out[3:3 + 3 * N_FREQS])
-        np.cos(a, out=out[3 + 3 * N_FREQS:PE_DIM])
-        out[PE_DIM] = 1.0
+        np.sin(a, out=out[3:3 + k])
+        np.cos(a, out=out[3 + k:3 + 2 * k])
+        out[-1] = 1.0
         return out
 
     def precision_error(self, lod: float = 0.0, **codes) -> dict[str, float]:
@@ -145,9 +145,10 @@ class _Network:
                         (w("mapping.2.weight"), b("mapping.2.bias")[:, 0])]
         first = w("decoder.first.weight")  # (fused width, in_dim): PE | feature | drive | l
         n_feat = cfg.feature_dim if cfg.levels else 0
-        self.w_pe = first[:, :PE_DIM]
-        self.w_feature = np.ascontiguousarray(first[:, PE_DIM:PE_DIM + n_feat])
-        self.w_drive = first[:, PE_DIM + n_feat:PE_DIM + n_feat + cfg.drive_dim]
+        pe = cfg.pe_dim
+        self.w_pe = first[:, :pe]
+        self.w_feature = np.ascontiguousarray(first[:, pe:pe + n_feat])
+        self.w_drive = first[:, pe + n_feat:pe + n_feat + cfg.drive_dim]
         self.w_lod = first[:, -1]
         self.b_first = b("decoder.first.bias")[:, 0]
         self.slices = cfg.head_slices()
@@ -179,7 +180,7 @@ class _Network:
         return self.round(self.w_drive @ drive + F32(lod) * self.w_lod + self.b_first)
 
     def decode(self, pe: np.ndarray, first, frame_bias: np.ndarray) -> dict[str, np.ndarray]:
-        """Raw head outputs, (width, N) each, from the PE (PE_DIM + 1, N)."""
+        """Raw head outputs, (width, N) each, from the PE (pe_dim + 1, N)."""
         n = pe.shape[1]
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
         out = {name: np.empty((head[1][0].shape[0], n), F32)
