@@ -129,7 +129,6 @@ def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
                             resumed.avatar.state_dict().values(), strict=True):
         assert torch.equal(a, b), name
 
-
     other = random_model()  # resuming with another FLAME model is refused by name
     with pytest.raises(ValueError, match=f"started on the FLAME model '{model.model_id}', "
                                          f"resumed with '{other.model_id}'"):
