@@ -15,6 +15,7 @@ from pathlib import Path
 
 from .io.cli import run_command
 from .sequences import FORMAT_NAMES, read_sequence, write_canonical
+from .track.cli import add_subject, add_track
 
 
 def _add_convert(commands) -> None:
@@ -54,7 +55,7 @@ def _demo(args) -> int:
     return subprocess.run([sys.executable, str(script), *args.options]).returncode
 
 
-COMMANDS = (_add_convert, _add_demo)
+COMMANDS = (_add_convert, _add_demo, add_track, add_subject)
 
 
 def main(argv=None) -> int:

@@ -18,7 +18,7 @@ from pathlib import Path
 from ..avatar.config import AvatarConfig
 
 CONFIG_DIR = Path(__file__).parent / "configs"
-PRESETS = ("cpu", "gpu_paper", "demo")
+PRESETS = ("cpu", "cpu_short", "gpu_paper", "demo")
 
 
 @dataclass(frozen=True)

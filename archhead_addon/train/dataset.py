@@ -76,7 +76,7 @@ def target_size(resolution, source: tuple[int, int]) -> tuple[int, int]:
     return size
 
 
-def _numbered_images(folder: Path) -> list[tuple[int, Path]]:
+def numbered_images(folder: Path) -> list[tuple[int, Path]]:
     """The folder's numbered images, one suffix only (see `numbered_files` for the rules)."""
     if not folder.is_dir():
         raise InputError(folder, None, "folder not found")
@@ -94,7 +94,7 @@ def _companions(folder: Path, frames: list[tuple[int, Path]], what: str) -> list
     """The masks/ or parts/ file of every frame (None when the folder does not exist)."""
     if not folder.exists():
         return None
-    by_number = dict(_numbered_images(folder))
+    by_number = dict(numbered_images(folder))
     missing = [path.name for n, path in frames if n not in by_number]
     if missing:
         shown = ", ".join(missing[:8]) + (f" (and {len(missing) - 8} more)"
@@ -152,7 +152,7 @@ class FrameDataset:
                                                  & (self.background <= 1)).all():
             raise ValueError(f"background must be an RGB triple in [0, 1], got {background!r}")
         self.sequence = self._read_tracking(tracking).fit_to_model(model)
-        frames = _numbered_images(self.root / FRAMES_DIR)
+        frames = numbered_images(self.root / FRAMES_DIR)
         _match_tracking(frames, self.sequence, self.root / FRAMES_DIR)
         self.frame_paths = [p for _, p in frames]
         self.mask_paths = _companions(self.root / MASKS_DIR, frames, "mask")

@@ -1,0 +1,15 @@
+"""Face tracking from a plain video on a CPU: MediaPipe landmarks fitted with FLAME.
+
+`python -m archhead_addon track VIDEO --out DIR` writes a training data folder
+(`archhead_addon.train` reads it). The pieces:
+
+- `media`: frames from a video file, a folder of numbered images or one image;
+- `detect`: MediaPipe Face Mesh (478 landmarks with iris) and selfie segmentation, from the
+  models inside the `mediapipe==0.10.21` wheel (never downloaded);
+- `embedding`: where those landmarks sit on any FLAME-format model, derived by rendering the
+  model and detecting landmarks on the renders (no MPI asset);
+- `fit`: identity, per-frame expression, jaw, eyes, head pose, translation and focal length
+  from the landmarks, with priors and temporal smoothness (torch);
+- `folder`: the training folder, written into a temporary sibling and renamed when complete;
+- `pipeline`: the whole run with progress; `accuracy`: measurements against known codes.
+"""

@@ -1,0 +1,88 @@
+"""Frames from a video file, a folder of numbered images or a single image, as RGB uint8.
+
+Video is decoded with OpenCV (FFmpeg inside its wheel). A file OpenCV cannot open, or one
+that yields no frame, is an InputError naming it; a video that ends before the frame count
+its header claims (truncated) is used up to where it ends, with a warning.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io.errors import InputError, warn_input
+from ..train.dataset import numbered_images
+from ..train.images import IMAGE_SUFFIXES, read_image
+
+DEFAULT_FPS = 25.0
+
+
+@dataclass
+class FrameSource:
+    path: Path
+    fps: float
+    count: int  # frames expected (a video header's count may overstate a truncated file)
+    kind: str  # "video", "images" or "image"
+    _files: list | None = None
+
+    def frames(self, limit: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """(frame number, RGB (H,W,3) uint8) in order, at most `limit` of them."""
+        limit = self.count if limit is None else min(limit, self.count)
+        if self.kind == "video":
+            yield from _video_frames(self.path, limit)
+            return
+        for number, path in self._files[:limit]:
+            rgb, _ = read_image(path)
+            yield number, np.round(rgb[..., :3] * 255).astype(np.uint8)
+
+
+def open_frames(path) -> FrameSource:
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, None, "not found: expected a video file, a folder of numbered "
+                         "images or an image")
+    if path.is_dir():
+        files = numbered_images(path)
+        return FrameSource(path, DEFAULT_FPS, len(files), "images", files)
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        return FrameSource(path, DEFAULT_FPS, 1, "image", [(0, path)])
+    import cv2
+
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            raise InputError(path, None, "not a video OpenCV can decode (and not a PNG, JPG or "
+                             "EXR image or a folder of them)")
+        fps = capture.get(cv2.CAP_PROP_FPS)
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        ok, _ = capture.read()
+    finally:
+        capture.release()
+    if not ok:
+        raise InputError(path, None, "the video has no frame that can be decoded")
+    if not np.isfinite(fps) or not 1 <= fps <= 1000:
+        warn_input(path, "fps", f"implausible frame rate {fps!r}; using {DEFAULT_FPS:g}")
+        fps = DEFAULT_FPS
+    return FrameSource(path, float(fps), max(count, 1), "video")
+
+
+def _video_frames(path: Path, limit: int) -> Iterator[tuple[int, np.ndarray]]:
+    import cv2
+
+    capture = cv2.VideoCapture(str(path))
+    number = 0
+    try:
+        while number < limit:
+            ok, bgr = capture.read()
+            if not ok:
+                break
+            yield number, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            number += 1
+    finally:
+        capture.release()
+    if number < limit:
+        warn_input(path, None, f"the video ended after {number} of the {limit} frames its "
+                   "header announces (truncated?); using those")

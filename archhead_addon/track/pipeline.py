@@ -1,0 +1,194 @@
+"""The tracker end to end: frames -> landmarks and masks -> FLAME fit -> training folder.
+
+Frames are decoded twice (landmarks first, then the crop once the whole clip's face
+position is known) so memory holds landmarks and small masks, not the video.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..flame.lbs import forward
+from ..flame.model import load_model
+from ..io.errors import InputError, warn_input
+from ..sequences import Sequence, write_canonical
+from ..train.dataset import TRACKING_FILE
+from ..train.images import resize
+from .detect import FaceDetector
+from .embedding import landmark_embedding
+from .fit import FitOptions, fit_landmarks
+from .folder import staged_folder, write_frame, write_report
+from .media import open_frames
+
+MIN_FRAMES = 2  # a training folder needs a train and a test frame
+CROP_FACE_HEIGHTS = 2.6  # the square crop's side in face heights (when the frame allows)
+OUTLIER_RATIO, OUTLIER_MIN_PX = 4.0, 6.0  # a frame's residual beyond both is dropped
+
+
+@dataclass
+class TrackOptions:
+    size: int = 512
+    max_frames: int | None = None
+    focal: float | None = None  # pixels at the source frames' size
+    flame: str | None = None  # a FLAME model file; None: the built-in head
+
+
+def _square_crop(landmarks: np.ndarray, size: tuple[int, int]) -> tuple[int, int, int]:
+    """(x0, y0, side): one square for the whole clip around the median face position."""
+    height, width = size
+    lo, hi = landmarks.min(axis=1), landmarks.max(axis=1)  # (T,2)
+    centre = np.median((lo + hi) / 2, axis=0)
+    face = np.median(hi[:, 1] - lo[:, 1])
+    side = int(min(height, width, max(round(CROP_FACE_HEIGHTS * face), 16)))
+    x0 = int(np.clip(round(centre[0] - side / 2), 0, width - side))
+    y0 = int(np.clip(round(centre[1] - side / 2), 0, height - side))
+    return x0, y0, side
+
+
+def track(source_path, out, options: TrackOptions | None = None, progress=None) -> dict:
+    """Track a video (or frames) into the training folder `out`; returns the report."""
+    opt = options or TrackOptions()
+    if not 16 <= opt.size <= 4096:
+        raise InputError(None, "size", f"{opt.size} px is outside 16 ... 4096")
+    say = progress or (lambda **event: None)
+    times = {}
+    t0 = time.monotonic()
+    source = open_frames(source_path)
+    model = load_model(opt.flame)
+    embedding = landmark_embedding(model)
+    times["model"] = time.monotonic() - t0
+
+    t0 = time.monotonic()
+    numbers, landmarks, masks, dropped, multi = [], [], [], [], 0
+    size = None
+    total = source.count if opt.max_frames is None else min(opt.max_frames, source.count)
+    with FaceDetector(video=source.kind == "video") as detect:
+        for number, rgb in source.frames(total):
+            if size is None:
+                size = rgb.shape[:2]
+            elif rgb.shape[:2] != size:
+                raise InputError(source.path, None, f"frame {number} is {rgb.shape[1]}x"
+                                 f"{rgb.shape[0]}, the first was {size[1]}x{size[0]}")
+            found = detect(rgb)
+            multi += found.n_faces > 1
+            if found.landmarks is None:
+                dropped.append({"frame": number, "reason": "no face found"})
+            else:
+                numbers.append(number)
+                landmarks.append(found.landmarks)
+                masks.append(np.round(found.mask * 255).astype(np.uint8))
+            say(event="step", stage="detect", step=len(numbers) + len(dropped), total=total)
+    times["detect"] = time.monotonic() - t0
+    if multi:
+        warn_input(source.path, None, f"{multi} frames show more than one face; the largest "
+                   "face of each frame was tracked")
+    if len(numbers) < MIN_FRAMES:
+        raise InputError(source.path, None, f"a face was found in {len(numbers)} of "
+                         f"{len(numbers) + len(dropped)} frames; tracking needs at least "
+                         f"{MIN_FRAMES}")
+    landmarks = np.array(landmarks)
+    numbers = np.array(numbers)
+
+    t0 = time.monotonic()
+    fit = fit_landmarks(model, embedding, landmarks, numbers, source.fps, size,
+                        FitOptions(focal=opt.focal),
+                        progress=lambda d, n, e: say(event="step", stage="fit", step=d,
+                                                     total=n))
+    times["fit"] = time.monotonic() - t0
+    limit = max(OUTLIER_RATIO * np.median(fit.residual_px), OUTLIER_MIN_PX)
+    keep = fit.residual_px <= limit
+    for number, r in zip(numbers[~keep], fit.residual_px[~keep], strict=True):
+        dropped.append({"frame": int(number), "reason": f"landmark fit residual {r:.1f} px "
+                        f"(limit {limit:.1f} px): face occluded or mis-detected"})
+    if keep.sum() < MIN_FRAMES:
+        raise InputError(source.path, None, f"only {keep.sum()} frames fit the face model")
+    if dropped:
+        warn_input(source.path, None, f"{len(dropped)} frames dropped (listed in the report)")
+
+    x0, y0, side = _square_crop(landmarks[keep], size)
+    scale = opt.size / side
+    K = fit.K.copy()
+    K[:2] *= scale
+    K[0, 2] -= x0 * scale
+    K[1, 2] -= y0 * scale
+    kept = np.flatnonzero(keep)
+    n = len(kept)
+    codes = {k: (v if k == "shape" else v[kept]) for k, v in fit.codes.items()}
+    seq = Sequence(shape=np.tile(codes["shape"], (n, 1)), expr=codes["expr"],
+                   jaw=codes["jaw"], neck=codes["neck"], eyes=codes["eyes"],
+                   rotation=codes["rotation"], translation=codes["translation"],
+                   fps=source.fps, frame_ids=numbers[kept], source=str(source.path),
+                   format="archhead-track", K=np.tile(K, (n, 1, 1)),
+                   w2c=np.tile(fit.w2c, (n, 1, 1)), image_size=(opt.size, opt.size)).validate()
+
+    t0 = time.monotonic()
+    out_size = (opt.size, opt.size)
+    cut_rows = _neck_rows(model, codes, K, fit.w2c, out_size)
+    position = {int(numbers[i]): j for j, i in enumerate(kept)}
+    with staged_folder(out) as stage:
+        write_canonical(seq, stage / TRACKING_FILE)
+        for number, rgb in source.frames(total):
+            j = position.get(number)
+            if j is None:
+                continue
+            crop = rgb[y0:y0 + side, x0:x0 + side]
+            mask = masks[kept[j]][y0:y0 + side, x0:x0 + side].astype(np.float32) / 255.0
+            frame = np.round(np.clip(resize(crop, out_size), 0, 255)).astype(np.uint8)
+            mask = resize(mask, out_size)
+            mask[cut_rows[j]:] = 0.0  # clothes and shoulders below the head mesh
+            write_frame(stage, number, frame, mask)
+            say(event="step", stage="write", step=j + 1, total=n)
+        times["write"] = time.monotonic() - t0
+        report = _report(source, opt, numbers, landmarks, kept, dropped, fit, scale,
+                         (x0, y0, side), times, multi)
+        write_report(stage, report)
+    return report
+
+
+def _neck_rows(model, codes, K, w2c, size, chunk: int = 64) -> np.ndarray:
+    """Per frame, the first image row below the whole head mesh (the mask ends there)."""
+    rows = []
+    for start in range(0, len(codes["expr"]), chunk):
+        part = {k: v[start:start + chunk] for k, v in codes.items() if k != "shape"}
+        verts = forward(model, shape=codes["shape"], **part)
+        cam = verts @ w2c[:3, :3].T + w2c[:3, 3]
+        y = (cam @ K.T)[..., 1] / cam[..., 2]
+        rows.append(np.clip(np.ceil(y.max(axis=1)), 0, size[0]).astype(np.int64))
+    return np.concatenate(rows)
+
+
+def jitter_px(points: np.ndarray, numbers: np.ndarray) -> float:
+    """Median second difference of landmark tracks (T,L,2) over runs of consecutive frames:
+    how far points jump beyond constant velocity, frame to frame."""
+    run = (np.diff(numbers[:-1]) == 1) & (np.diff(numbers[1:]) == 1)
+    if not run.any():
+        return float("nan")
+    second = points[2:] - 2 * points[1:-1] + points[:-2]
+    return float(np.median(np.linalg.norm(second[run], axis=-1)))
+
+
+def _report(source, opt, numbers, landmarks, kept, dropped, fit, scale, crop, times,
+            multi) -> dict:
+    good = fit.landmark_residual_px[kept] * scale  # at the output size
+    residual = fit.residual_px[kept] * scale
+    n_read = len(numbers) + sum(d["reason"] == "no face found" for d in dropped)
+    rounded = {k: round(v, 3) for k, v in (
+        ("median", np.median(residual)), ("p95", np.percentile(residual, 95)),
+        ("all_landmarks_median", np.median(good)))}
+    return {
+        "source": str(source.path), "frames_read": int(n_read), "frames_kept": int(len(kept)),
+        "dropped": sorted(dropped, key=lambda d: d["frame"]),
+        "frames_with_several_faces": int(multi), "output_size": opt.size,
+        "crop_xywh": [crop[0], crop[1], crop[2], crop[2]],
+        "focal_px_source": round(fit.focal, 2), "focal_given": opt.focal is not None,
+        "model": opt.flame or "built-in",
+        "residual_px": rounded,
+        "jitter_px": {
+            "fitted": round(jitter_px(fit.projected[kept] * scale, numbers[kept]), 3),
+            "detected": round(jitter_px(landmarks[kept] * scale, numbers[kept]), 3)},
+        "seconds": {k: round(v, 2) for k, v in times.items()},
+        "seconds_per_frame": round(sum(times.values()) / max(n_read, 1), 3),
+    }

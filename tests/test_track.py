@@ -1,0 +1,156 @@
+"""The face tracker: the reduced FLAME model, the landmark embedding, codes recovered from a
+rendered synthetic clip, the command line, and bad videos from the real-media wheel."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from archhead_addon.flame.lbs import forward
+from archhead_addon.flame.model import PART_EYE, load_model
+from archhead_addon.flame.subset import vertex_subset
+from archhead_addon.io.errors import InputError, InputWarning
+from archhead_addon.sequences import read_sequence
+from archhead_addon.track.accuracy import code_errors, vertex_errors
+from archhead_addon.track.embedding import landmark_embedding
+from archhead_addon.track.pipeline import TrackOptions, track
+from archhead_addon.track.real_subject import fetch_media
+from archhead_addon.train.dataset import FrameDataset
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SYNTH_FRAMES, SYNTH_SIZE = 30, 192
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model(None)
+
+
+@pytest.fixture(scope="module")
+def media():
+    return fetch_media()
+
+
+@pytest.fixture(scope="module")
+def synthetic_clip(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("track") / "synthetic"
+    subprocess.run([sys.executable, str(REPO_ROOT / "operators" / "synthetic_subject.py"),
+                    "--out", str(folder), "--frames", str(SYNTH_FRAMES), "--size",
+                    str(SYNTH_SIZE), "--samples", "4"], check=True, capture_output=True,
+                   timeout=600)
+    return folder
+
+
+def test_vertex_subset_poses_its_vertices_exactly(model):
+    rng = np.random.default_rng(0)
+    ids = rng.choice(model.n_verts, 200, replace=False)
+    codes = {"shape": rng.normal(size=(2, 300)), "expr": rng.normal(size=(2, 100)),
+             "jaw": 0.3 * rng.normal(size=(2, 3)), "neck": 0.3 * rng.normal(size=(2, 3)),
+             "eyes": 0.3 * rng.normal(size=(2, 6)), "rotation": rng.normal(size=(2, 3)),
+             "translation": rng.normal(size=(2, 3))}
+    full = forward(model, **codes)[:, ids]
+    np.testing.assert_allclose(forward(vertex_subset(model, ids), **codes)[:, :200], full,
+                               atol=1e-12)
+
+
+def test_embedding_places_landmarks_on_the_builtin_head(model, tmp_path):
+    emb = landmark_embedding(model, cache=tmp_path)
+    assert (emb.weight > 0.5).sum() >= 400  # most points agree across the renders
+    np.testing.assert_allclose(emb.bary.sum(axis=1), 1.0, atol=1e-9)
+    # The iris points (468-477) sit on the eyes, the nose tip (1) is the frontmost region.
+    iris_parts = model.vertex_parts[model.faces[emb.faces[468:]]]
+    assert (iris_parts == PART_EYE).all()
+    points = emb.points(model.v_template, model.faces)
+    assert points[1, 2] > np.percentile(points[:, 2], 95)
+    # Cached: the second call reads the file and gives the same arrays.
+    again = landmark_embedding(model, cache=tmp_path)
+    np.testing.assert_array_equal(again.faces, emb.faces)
+
+
+def test_tracker_recovers_the_codes_of_a_rendered_clip(synthetic_clip, model, tmp_path):
+    truth = read_sequence(synthetic_clip / "tracking.npz")
+    out = tmp_path / "tracked"
+    report = track(synthetic_clip / "frames", out,
+                   TrackOptions(size=SYNTH_SIZE, focal=float(truth.K[0, 0, 0])))
+    assert report["frames_kept"] == SYNTH_FRAMES and not report["dropped"]
+    seq = read_sequence(out / "tracking.npz")
+    errors = vertex_errors(model, seq, truth.subset(0, SYNTH_FRAMES))
+    assert np.median(errors) < 3.0 and np.percentile(errors, 95) < 7.0  # mm; docs: ~2 / 5
+    codes = code_errors(seq, truth.subset(0, SYNTH_FRAMES))
+    assert codes["jaw_deg_median"] < 5.0 and codes["head_rotation_deg_median"] < 5.0
+    # The folder trains: frames, masks and parts read back with the tracking.
+    item = FrameDataset(out, 64, model)[0]
+    assert item["mask"].max() > 0.5 and item["parts"].max() == 1.0  # B from the mesh
+
+
+def test_command_line_writes_progress_and_a_folder(media, tmp_path):
+    out = tmp_path / "clip"
+    done = subprocess.run([sys.executable, "-m", "archhead_addon", "track",
+                           str(media / "single_face.mp4"), "--out", str(out), "--frames", "12",
+                           "--size", "128", "--progress-json"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    events = [json.loads(line) for line in done.stdout.splitlines()]
+    assert events[0]["event"] == "start" and events[-1]["event"] == "done"
+    assert {e.get("stage") for e in events} >= {"detect", "fit", "write"}
+    report = json.loads((out / "tracking_report.json").read_text())
+    assert report["frames_kept"] + len(report["dropped"]) == 12
+    assert len(list((out / "frames").glob("*.png"))) == report["frames_kept"]
+
+
+@pytest.mark.parametrize("name", ["no_face.mp4", "truncated", "not_a_video"])
+def test_videos_without_a_usable_face_are_refused_and_leave_nothing(media, tmp_path, name):
+    if name == "truncated":
+        video = tmp_path / "truncated.mp4"
+        video.write_bytes((media / "WolfgangLanger_Pexels.mp4").read_bytes()[:20000])
+    elif name == "not_a_video":
+        video = tmp_path / "notes.mp4"
+        video.write_text("this is not a video\n" * 100)
+    else:
+        video = media / name
+    out = tmp_path / "out"
+    with pytest.raises(InputError) as err, warnings.catch_warnings():
+        warnings.simplefilter("ignore", InputWarning)
+        track(video, out, TrackOptions(size=64, max_frames=20))
+    assert str(video) in str(err.value)
+    assert not out.exists() and not list(tmp_path.glob("out.partial-*"))
+
+
+def test_frames_without_a_face_are_dropped_and_reported(media, tmp_path):
+    out = tmp_path / "out"
+    with pytest.warns(InputWarning, match="frames dropped"):
+        report = track(media / "face_noface.mov", out, TrackOptions(size=96))
+    reasons = {d["reason"] for d in report["dropped"]}
+    assert "no face found" in reasons
+    assert report["frames_kept"] == len(list((out / "frames").glob("*.png"))) >= 2
+    seq = read_sequence(out / "tracking.npz")
+    dropped = {d["frame"] for d in report["dropped"]}
+    assert not dropped & set(seq.frame_ids.tolist())
+
+
+def test_a_group_photo_gives_a_warning_or_a_clear_error(media, tmp_path):
+    """Face Mesh's short-range detector finds few of the small faces in multi_face.jpg: the
+    tracker either tracks the largest face with a warning or says no face was found."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for n in range(3):
+        shutil.copy(media / "multi_face.jpg", frames / f"{n:05d}.jpg")
+    out = tmp_path / "out"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", InputWarning)
+        try:
+            report = track(frames, out, TrackOptions(size=96))
+        except InputError as exc:
+            assert "a face was found in" in str(exc) and str(frames) in str(exc)
+            assert not out.exists()
+            return
+    if report["frames_with_several_faces"]:
+        assert any("more than one face" in str(w.message) for w in caught)
+    assert report["frames_kept"] >= 2
