@@ -40,3 +40,26 @@ def overlay_sheet(data, model: FlameModel, picks: int = 6, width: int = 256) -> 
 
     sheet = np.concatenate([resize(c, (2 * width, width)) for c in columns], axis=1)
     return np.round(np.clip(sheet, 0, 1) * 255).astype(np.uint8)
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    from ..flame.model import load_model
+    from ..io.atomic import write_bytes_atomic
+    from ..synthetic.png import encode_png
+
+    parser = argparse.ArgumentParser(prog="python -m archhead_addon.track.overlay",
+                                     description="Frames over tracked-mesh overlays, as a PNG.")
+    parser.add_argument("--data", required=True, help="a tracked training folder")
+    parser.add_argument("--out", required=True, help="PNG to write")
+    parser.add_argument("--picks", type=int, default=6)
+    parser.add_argument("--flame", help="the FLAME model it was tracked with")
+    args = parser.parse_args(argv)
+    sheet = overlay_sheet(args.data, load_model(args.flame), args.picks)
+    write_bytes_atomic(args.out, encode_png(sheet))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
