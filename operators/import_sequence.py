@@ -1,20 +1,3 @@
-"""File > Import > Tracked FLAME sequence: reads any supported format into a rigged head."""
-
-from __future__ import annotations
-
-import warnings
-from pathlib import Path
-
-import bpy
-from bpy_extras.io_utils import ImportHelper
-
-from ..archhead_addon.io.errors import InputError, InputWarning
-from ..archhead_addon.sequences import read_sequence
-from ..panels.preferences import get_preferences
-from .head_builder import ImportOptions, build_head
-from .model_cache import head_model
-
-
 class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
     """Import a tracked FLAME sequence as a rigged, shape-keyed, animated head"""
 
@@ -73,20 +56,3 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         return {"frame_start": self.frame_start, "frame_end": self.frame_end,
                 "stride": self.stride, "fps": self.target_fps or None, "n_expr": self.n_expr,
                 "camera": self.use_camera, "pose_correctives": self.pose_correctives}
-
-
-def import_sequence(context, path, options: dict | None = None, model_path: str = ""):
-    """Read `path`, fit it to the model and build the head; returns the armature object.
-
-    Shared by the operator, scripts and tests (`blender -b --python` or the bpy module).
-    """
-    options = dict(options or {})
-    model = head_model(model_path)
-    seq = read_sequence(path).fit_to_model(model)
-    end = options.pop("frame_end", -1)
-    seq = seq.subset(options.pop("frame_start", 0), None if end < 0 else end + 1,
-                     options.pop("stride", 1))
-    info = {"sequence": str(path), "format": seq.format, "frames": len(seq),
-            "source_fps": seq.fps}
-    return build_head(context, model, seq, ImportOptions(name=Path(path).stem or "ArchHead",
-                                                         **options), info)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..backend_process import train_command
 from ..train.config import TrainConfig
+from ..train.run_folder import RunFolder
 
 VARIANTS = {"full (multi-level)": None, "no feature map": [], "single map 64": [64],
             "single map 128": [128], "single map 256": [256]}
@@ -38,14 +39,14 @@ def train_variants(base: TrainConfig, steps: int, data: Path, out: Path,
     done = {}
     for name, levels in VARIANTS.items():
         folder = out / name.split(" (")[0].replace(" ", "_")
-        for stale in ("train_state.pt", "avatar.npz"):
-            (folder / stale).unlink(missing_ok=True)
+        run = RunFolder(folder)
+        run.clear_checkpoints()
         folder.mkdir(parents=True, exist_ok=True)
         config = folder / "ablation_config.json"
         config.write_text(json.dumps(variant_config(base, levels, steps)))
         start = time.perf_counter()
-        with open(folder / "train.log", "w") as log:
+        with open(run.log, "w") as log:
             subprocess.run(train_command(python, data, folder, config), check=True,
                            stdout=log, stderr=subprocess.STDOUT)
-        done[name] = (folder / "avatar.npz", time.perf_counter() - start)
+        done[name] = (run.avatar, time.perf_counter() - start)
     return done

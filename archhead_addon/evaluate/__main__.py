@@ -22,6 +22,7 @@ from pathlib import Path
 
 from ..io.cli import run_command
 from ..io.errors import InputError
+from ..train.run_folder import RunFolder
 
 
 def _lods(text: str) -> list[float]:
@@ -58,9 +59,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 def run_resolution(args) -> int:
     if args.resolution is not None:
         return args.resolution
-    config = args.avatar.parent / "config.json"
+    config = RunFolder(args.avatar.parent).config
     if not config.is_file():
-        raise InputError(args.avatar.parent, None, "no config.json of a training run here: "
+        raise InputError(args.avatar.parent, None, f"no {config.name} of a training run here: "
                          "pass --resolution")
     return int(json.loads(config.read_text())["resolution"])
 

@@ -22,7 +22,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..io.errors import InputError, InputWarning
-from .config import PRESETS, TrainConfig
+from .config import DEFAULT_PRESET, PRESETS, TrainConfig
+from .run_folder import RunFolder
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -36,8 +37,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, required=True, help="training data folder")
     p.add_argument("--out", type=Path, required=True, help="output folder of the run")
-    p.add_argument("--config", default="cpu", help=f"config file, or a preset: "
-                   f"{', '.join(PRESETS)} (default: cpu); ignored with --resume, which "
+    p.add_argument("--config", default=DEFAULT_PRESET, help=f"config file, or a preset: "
+                   f"{', '.join(PRESETS)} (default: {DEFAULT_PRESET}); ignored with --resume, which "
                    "uses the run's own")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from "
                    "its last checkpoint")
@@ -79,9 +80,9 @@ def setup(args, progress: Progress) -> Trainer:
     from . import loop
     from .dataset import FrameDataset
 
-    state_path = args.out / loop.STATE_FILE
+    state_path = RunFolder(args.out).state
     if args.resume and not state_path.is_file():
-        raise InputError(args.out, None, f"nothing to resume: no {loop.STATE_FILE} here")
+        raise InputError(args.out, None, f"nothing to resume: no {state_path.name} here")
     if not args.resume and state_path.exists():
         raise InputError(args.out, None, "holds a training run: pass --resume to continue "
                          "it, or choose another --out")
@@ -108,11 +109,10 @@ def setup(args, progress: Progress) -> Trainer:
 
 
 def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
-    from .loop import AVATAR_FILE
 
     finished = trainer.run(progress.step, progress.checkpoint, stop)
     kind = "done" if finished else "interrupted"
-    avatar = trainer.out_dir / AVATAR_FILE
+    avatar = RunFolder(trainer.out_dir).avatar
     total = trainer.config.total_steps
     progress.event(kind, step=trainer.step, total=total, avatar=str(avatar),
                    elapsed_seconds=round(trainer.elapsed, 1))

@@ -50,8 +50,8 @@ from .config import TrainConfig
 from .losses import TrainingLoss
 from .perceptual import ShiftTolerantLPIPS
 from .progress import StepReport
+from .run_folder import RunFolder
 
-AVATAR_FILE, STATE_FILE, CONFIG_FILE = "avatar.npz", "train_state.pt", "config.json"
 STATE_FORMAT, STATE_VERSION = "archhead-train-state", 1
 EMA = 0.9  # smoothing of the seconds-per-step estimate
 
@@ -138,7 +138,7 @@ class Trainer:
         not the FLAME model the run was started with."""
         trained_on = state.get("model_id")
         if trained_on is not None and trained_on != model.model_id:
-            raise ValueError(f"{Path(out_dir) / STATE_FILE}: model_id: the run was started on "
+            raise ValueError(f"{RunFolder(out_dir).state}: model_id: the run was started on "
                              f"the FLAME model '{trained_on}', resumed with '{model.model_id}' "
                              "(pass the same --flame as the run's first session)")
         avatar = ArchHeadAvatar(avatar_mesh(model), state["model"]["identity_shape"].numpy(),
@@ -146,7 +146,7 @@ class Trainer:
         try:
             avatar.load_state_dict(state["model"], strict=True)
         except RuntimeError as exc:  # a state of another model size (no model_id: version 1)
-            raise ValueError(f"{Path(out_dir) / STATE_FILE}: model: the saved weights do not "
+            raise ValueError(f"{RunFolder(out_dir).state}: model: the saved weights do not "
                              f"fit the FLAME model '{model.model_id}' ({exc})") from exc
         trainer = cls(state_config(state), frames, avatar.to(device), out_dir, background,
                       device)
@@ -233,13 +233,13 @@ class Trainer:
                  "avatar_config": self.avatar.config.to_json(),
                  "model": {k: v.detach().cpu() for k, v in self.avatar.state_dict().items()},
                  "optimizer": _to_cpu(self.optimizer.state_dict())}
-        with atomic_path(self.out_dir / STATE_FILE) as tmp:
+        with atomic_path(RunFolder(self.out_dir).state) as tmp:
             torch.save(state, tmp)
-        save_avatar(self.out_dir / AVATAR_FILE, self.avatar)
-        return self.out_dir / AVATAR_FILE
+        save_avatar(RunFolder(self.out_dir).avatar, self.avatar)
+        return RunFolder(self.out_dir).avatar
 
     def write_config(self) -> None:
-        write_bytes_atomic(self.out_dir / CONFIG_FILE, self.config.to_json().encode() + b"\n")
+        write_bytes_atomic(RunFolder(self.out_dir).config, self.config.to_json().encode() + b"\n")
 
     def run(self, on_step: Callable[[StepReport], None],
             on_checkpoint: Callable[[int, Path], None],

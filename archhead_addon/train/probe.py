@@ -123,12 +123,13 @@ def make_trainer(args):
     from ..io.errors import InputError
     from . import loop
     from .dataset import FrameDataset
+    from .run_folder import RunFolder
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    state_path = args.run / loop.STATE_FILE
+    state_path = RunFolder(args.run).state
     if not state_path.is_file():
-        raise InputError(args.run, None, f"no {loop.STATE_FILE}: not a training run")
+        raise InputError(args.run, None, f"no {state_path.name}: not a training run")
     state = loop.load_state(state_path)
     config = loop.state_config(state)
     if args.no_regularisers:

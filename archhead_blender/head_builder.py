@@ -12,13 +12,13 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from ..archhead_addon.camera import (
+from archhead_addon.camera import (
     FLAME_TO_BLENDER,
     intrinsics_to_blender,
     w2c_to_blender_matrix_world,
 )
-from ..archhead_addon.flame.model import JOINT_NAMES
-from ..archhead_addon.rig import (
+from archhead_addon.flame.model import JOINT_NAMES
+from archhead_addon.rig import (
     POSE_FEATURE_EXPRESSIONS,
     continuous_quaternions,
     pose_corrective_names,

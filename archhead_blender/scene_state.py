@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
-from ..archhead_addon.flame.model import JOINT_NAMES
+from archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
+from archhead_addon.flame.model import JOINT_NAMES
 
 
 def head_rig(head):

@@ -13,12 +13,12 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..archhead_addon.avatar.frame_selection import contiguous_runs
-from ..archhead_addon.camera import BlenderCamera
-from ..archhead_addon.export.transform import transform_gaussians
-from ..archhead_addon.io.atomic import write_bytes_atomic
-from ..archhead_addon.splat.blender_render import render_from_blender_camera
-from ..archhead_addon.synthetic.png import encode_png
+from archhead_addon.avatar.frame_selection import contiguous_runs
+from archhead_addon.camera import BlenderCamera
+from archhead_addon.export.transform import transform_gaussians
+from archhead_addon.io.atomic import write_bytes_atomic
+from archhead_addon.splat.blender_render import render_from_blender_camera
+from archhead_addon.synthetic.png import encode_png
 from .avatar_decode import decode_frames
 from .avatar_props import is_avatar
 from .avatar_session import session
