@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
-from pathlib import Path
 
 from .io.cli import run_command
 from .sequences import FORMAT_NAMES, read_sequence, write_canonical
@@ -40,18 +39,22 @@ def _convert(args) -> int:
     return 0
 
 
+DEMO_MODULE = "scripts.demo"
+
+
 def _add_demo(commands) -> None:
     p = commands.add_parser("demo", help="the whole pipeline on the built-in head (bpy module)",
                             description="Synthetic subject, short training (or --checkpoint), "
                             "import, decode, LOD driver on a dolly-in camera, clip, contact "
-                            "sheet, .blend: operators/script_demo.py, whose options it takes.")
+                            "sheet, .blend: scripts/demo.py, whose options it takes.")
     p.set_defaults(run=_demo, passes_on=True)  # every other argument goes to the script
 
 
 def _demo(args) -> int:
     # A child process: bpy loads Blender's whole runtime, which this light CLI stays without.
-    script = Path(__file__).resolve().parents[1] / "operators" / "script_demo.py"
-    return subprocess.run([sys.executable, str(script), *args.options]).returncode
+    # The demo is a checkout's script (scripts/demo.py), reached as a module from the
+    # checkout's root, never by a path into the Blender side.
+    return subprocess.run([sys.executable, "-m", DEMO_MODULE, *args.options]).returncode
 
 
 COMMANDS = (_add_convert, _add_demo)

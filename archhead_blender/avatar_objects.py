@@ -11,6 +11,7 @@ import numpy as np
 from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.avatar.compat import HeadFacts, check_head
 from archhead_addon.io.errors import InputError
+
 from .avatar_props import is_avatar
 from .avatar_session import base_model, drop_session, flame_model_path
 from .handlers import refresh_avatar

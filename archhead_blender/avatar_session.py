@@ -23,6 +23,7 @@ from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
 from archhead_addon.flame.model import FlameModel, load_model
+
 from .preferences import get_preferences
 from .state import STATE
 

@@ -19,9 +19,10 @@ from archhead_addon.export.transform import transform_gaussians
 from archhead_addon.io.atomic import write_bytes_atomic
 from archhead_addon.splat.blender_render import render_from_blender_camera
 from archhead_addon.synthetic.png import encode_png
-from .avatar_decode import decode_frames
+
 from .avatar_props import is_avatar
 from .avatar_session import session
+from .decoding import decode_frames
 from .handlers import frame_to_show
 
 

@@ -8,6 +8,7 @@ scripts call `decode_frames`, which does the same work in one go.
 from __future__ import annotations
 
 from archhead_addon.avatar.frame_selection import frames_to_decode
+
 from .avatar_session import Decoded, session
 from .handlers import refresh_avatar, resume, suspend
 from .scene_state import avatar_lod, frame_codes, head_rig, keyed_frames

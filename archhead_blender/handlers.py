@@ -21,6 +21,7 @@ from archhead_addon.avatar.decode_cache import SplatFrame
 from archhead_addon.avatar.frame_selection import held_frame
 from archhead_addon.avatar.point_attributes import point_attributes
 from archhead_addon.io.errors import InputError
+
 from .avatar_props import is_avatar
 from .avatar_session import forget_shown, session
 from .point_instances import write_points

@@ -24,6 +24,7 @@ from archhead_addon.rig import (
     pose_corrective_names,
     rig_animation,
 )
+
 from .keyframes import ActionWriter
 
 BONE_LENGTH = 0.02  # metres; only the display length, rest frames stay axis-aligned

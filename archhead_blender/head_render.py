@@ -1,9 +1,7 @@
 """Cycles scene pieces for rendering a FLAME-format head: textured mesh, light rig, cameras.
 
-Shared by the synthetic subject (`operators/synthetic_subject.py`) and the documentation
-renders (`tests/blender/render_builtin_model.py`). A script-side module, not part of the
-registered add-on: it imports the core package as `archhead_addon`, so the scripts put the
-repository root (and this folder) on sys.path first. Never imports torch.
+Shared by the synthetic subject (`synthetic_subject.py`) and the documentation renders
+(`tests/blender/render_builtin_model.py`); no operator uses them. Never imports torch.
 """
 
 from __future__ import annotations

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from archhead_addon.sequences import read_sequence
+
 from .head_builder import ImportOptions, build_head
 from .model_cache import head_model
 

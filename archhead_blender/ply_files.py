@@ -14,6 +14,7 @@ import numpy as np
 
 from archhead_addon.export.ply import write_ply
 from archhead_addon.export.transform import transform_gaussians
+
 from .handlers import frame_to_show
 
 

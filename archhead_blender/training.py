@@ -1,14 +1,16 @@
 """Train an avatar from Blender: the backend runs as a child process of the Python set in the
-preferences (Blender's own Python never imports torch), watched by a modal operator whose
-timer reads its JSON progress lines without blocking. Progress and ETA show in the N-panel
-and the status bar; Cancel sends SIGINT (the backend saves), escalating if it must; the log
-stays in the output folder; the finished checkpoint is loaded onto the head.
+preferences (Blender's own Python never imports torch), watched by the Train operator's timer,
+which reads its JSON progress lines (train/progress.py's schema) without blocking. Cancel
+sends SIGINT (the backend saves), escalating if it must; the log stays in the output folder;
+the finished checkpoint is loaded onto the head.
+
+Settings start from the same preset as the command line (train/config.py DEFAULT_PRESET, or a
+base config file) and the operator overrides only what the user changed.
 """
 
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import bpy
@@ -21,13 +23,27 @@ from archhead_addon.backend_process import (
 )
 from archhead_addon.io.errors import InputError
 from archhead_addon.sequences import read_sequence, write_canonical
-from .preferences import get_preferences
-from .avatar_objects import head_of, load_avatar
-from .avatar_session import flame_model_path
+from archhead_addon.train.config import DEFAULT_PRESET, config_data
+from archhead_addon.train.progress import RunStatus
+from archhead_addon.train.run_folder import RunFolder
 
-AVATAR_FILE, LOG_FILE, REQUEST_FILE = "avatar.npz", "train.log", "train_request.json"
+from .avatar_objects import load_avatar
+from .avatar_session import flame_model_path
+from .preferences import get_preferences
+from .state import STATE
+
 POLL_S = 0.5  # how often the timer reads the backend's progress
-_run: dict = {"current": None}
+
+
+def training_settings(overrides: dict, base_config: str = "") -> dict:
+    """The config the backend gets: the base config file (default: the command line's
+    preset) with `overrides` on top, key by key."""
+    try:
+        settings = config_data(base_config or DEFAULT_PRESET)
+    except (OSError, ValueError) as exc:
+        raise InputError(base_config or DEFAULT_PRESET, None, str(exc)) from exc
+    settings.update(overrides)
+    return settings
 
 
 class TrainingRun:
@@ -35,53 +51,47 @@ class TrainingRun:
 
     def __init__(self, backend: BackendRun, out_dir: Path, head_name: str | None):
         self.backend, self.out_dir, self.head_name = backend, out_dir, head_name
-        self.step = self.total = self.stage = 0
-        self.seconds_per_step = self.eta = None
-        self.loss: dict = {}
-        self.error: str | None = None
-        self.avatar = out_dir / AVATAR_FILE
+        self.run_folder = RunFolder(out_dir)
+        self.status = RunStatus()
 
     def update(self) -> bool:
-        """Read new progress (train/progress.py's events); True once the process exited."""
+        """Read new progress events; True once the process exited."""
         for record in self.backend.poll():
-            event = record.get("event")
-            if event == "step":
-                self.step, self.total = int(record["step"]), int(record["total"])
-                self.stage = record.get("stage", self.stage)
-                self.seconds_per_step = record.get("seconds_per_step")
-                self.eta = record.get("eta_seconds")
-                self.loss = record.get("loss", {})
-            elif event == "start":
-                self.step, self.total = int(record["step"]), int(record["total"])
-            elif event == "error":
-                self.error = record.get("message")
-            if "avatar" in record:
-                self.avatar = Path(record["avatar"])
+            self.status.apply(record)
         return self.backend.returncode is not None
 
     @property
+    def step(self) -> int:
+        return self.status.step
+
+    @property
+    def avatar(self) -> Path:
+        return Path(self.status.avatar) if self.status.avatar else self.run_folder.avatar
+
+    @property
     def fraction(self) -> float:
-        return self.step / self.total if self.total else 0.0
+        return self.status.step / self.status.total if self.status.total else 0.0
 
     def summary(self) -> str:
+        s = self.status
         if self.backend.cancelled_at is not None:
             return "Stopping (saving a checkpoint) ..."
-        if not self.total:
+        if not s.total:
             return "Starting ..."
-        rate = f", {self.seconds_per_step:.2f} s/step" if self.seconds_per_step else ""
-        return (f"Stage {self.stage}: {self.step} / {self.total}{rate}, "
-                f"ETA {format_eta(self.eta)}")
+        rate = f", {s.seconds_per_step:.2f} s/step" if s.seconds_per_step else ""
+        return f"Stage {s.stage}: {s.step} / {s.total}{rate}, ETA {format_eta(s.eta_seconds)}"
 
     def loss_text(self) -> str:
-        if not self.loss:
+        loss = self.status.loss
+        if not loss:
             return ""
-        total = self.loss.get("total")
-        terms = ", ".join(f"{k} {v:.4g}" for k, v in self.loss.items() if k != "total")
+        total = loss.get("total")
+        terms = ", ".join(f"{k} {v:.4g}" for k, v in loss.items() if k != "total")
         return f"loss {total:.4g} ({terms})" if total is not None else terms
 
 
 def current_run() -> TrainingRun | None:
-    return _run["current"]
+    return STATE.training_run
 
 
 def backend_python(context) -> str:
@@ -127,28 +137,29 @@ def start_training(context, frames_dir, tracking, out_dir, settings: dict,
         raise ValueError("a training run is already going; cancel it first")
     out_dir = Path(out_dir).resolve()
     data = prepare_data(frames_dir, tracking, out_dir)
-    config = out_dir / REQUEST_FILE
+    run_folder = RunFolder(out_dir)
+    config = run_folder.request
     config.write_text(json.dumps(settings, indent=1) + "\n")
     command = train_command(backend_python(context), data, out_dir, config, resume)
     model = flame_model_path(context)
     if model:
         command += ["--flame", bpy.path.abspath(model)]
-    backend = BackendRun(command, out_dir / LOG_FILE)
-    _run["current"] = run = TrainingRun(backend, out_dir, head_name)
+    backend = BackendRun(command, run_folder.log)
+    STATE.training_run = run = TrainingRun(backend, out_dir, head_name)
     return run
 
 
 def finish_training(context, run: TrainingRun) -> tuple[str, str]:
     """Close the run; load its checkpoint onto the head. Returns (report type, message)."""
-    _run["current"] = None
+    STATE.training_run = None
     run.update()
     run.backend.close()
     code = run.backend.returncode
     checkpoint = run.avatar
     cancelled = run.backend.cancelled_at is not None
     if code != 0 and not (cancelled and checkpoint.is_file()):
-        reason = run.error or f"exit code {code}"
-        return "ERROR", f"training failed ({reason}); see {run.out_dir / LOG_FILE}"
+        reason = run.status.error or f"exit code {code}"
+        return "ERROR", f"training failed ({reason}); see {run.run_folder.log}"
     head = bpy.data.objects.get(run.head_name) if run.head_name else None
     if head is not None and checkpoint.is_file():
         load_avatar(context, head, checkpoint)

@@ -1,12 +1,11 @@
-"""Operators: thin wrappers around the functions in this package's other modules."""
+"""Operators: thin classes around archhead_blender's functions (the work and the state live
+there; scripts call those functions directly through archhead_blender.api)."""
 
 import bpy
 
 from . import (
     avatar_decode,
     avatar_load,
-    avatar_props,
-    handlers,
     import_sequence,
     lod,
     ply_export,
@@ -34,19 +33,14 @@ def _menu_export(self, context):
 
 
 def register():
-    avatar_props.register()
     for cls in _CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.TOPBAR_MT_file_import.append(_menu_import)
     bpy.types.TOPBAR_MT_file_export.append(_menu_export)
-    handlers.register()
 
 
 def unregister():
-    handlers.unregister()
-    train_operator.unregister()
     bpy.types.TOPBAR_MT_file_export.remove(_menu_export)
     bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
     for cls in reversed(_CLASSES):
         bpy.utils.unregister_class(cls)
-    avatar_props.unregister()

@@ -1,3 +1,19 @@
+"""Decode Frames: the avatar's frame set into the caches, one frame per timer tick, so the
+interface stays live, shows progress (cursor, status bar, N-panel) and stops on Esc or the
+panel's Cancel. The work is archhead_blender.decoding's."""
+
+from __future__ import annotations
+
+import bpy
+
+from archhead_addon.io.errors import InputError
+from archhead_blender.avatar_objects import active_avatar
+from archhead_blender.avatar_session import session
+from archhead_blender.decoding import decode_frame, decode_frames, decode_set
+from archhead_blender.handlers import refresh_avatar, resume, suspend
+from archhead_blender.state import STATE
+
+
 class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
     """Decode the avatar's frames (keyed, every or every n-th) into the cache; Esc cancels"""
 
@@ -30,7 +46,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         self.frames = decode_set(context.scene, self.obj)
         self.start = context.scene.frame_current
         self.uid = self.obj.session_uid
-        progress[self.uid] = {"done": 0, "total": len(self.frames), "cancel": False}
+        STATE.decode_progress[self.uid] = {"done": 0, "total": len(self.frames), "cancel": False}
         wm = context.window_manager
         wm.progress_begin(0, max(len(self.frames), 1))
         self.timer = wm.event_timer_add(0.001, window=context.window)
@@ -39,7 +55,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        state = progress[self.uid]
+        state = STATE.decode_progress[self.uid]
         if event.type == "ESC" or state["cancel"]:
             return self._finish(context, f"Cancelled after {state['done']} frames")
         if event.type != "TIMER":
@@ -65,7 +81,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         wm.progress_end()
         if context.workspace is not None:
             context.workspace.status_text_set(None)
-        progress.pop(self.uid, None)
+        STATE.decode_progress.pop(self.uid, None)
         context.scene.frame_set(self.start)
         resume()
         refresh_avatar(self.obj, context.scene, context.evaluated_depsgraph_get())
@@ -84,7 +100,7 @@ class ARCHHEAD_OT_cancel_decode(bpy.types.Operator):
     bl_options = {"INTERNAL"}
 
     def execute(self, context):
-        for state in progress.values():
+        for state in STATE.decode_progress.values():
             state["cancel"] = True
         return {"FINISHED"}
 

@@ -1,3 +1,14 @@
+"""Load Avatar: attach a checkpoint to the selected head (archhead_blender.avatar_objects)."""
+
+from __future__ import annotations
+
+import bpy
+from bpy_extras.io_utils import ImportHelper
+
+from archhead_addon.io.errors import InputError
+from archhead_blender.avatar_objects import head_of, load_avatar
+
+
 class ARCHHEAD_OT_load_avatar(bpy.types.Operator, ImportHelper):
     """Attach a trained avatar checkpoint to the selected imported head"""
 

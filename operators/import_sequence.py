@@ -1,3 +1,19 @@
+"""File > Import > Tracked FLAME sequence: reads any supported format into a rigged head
+(archhead_blender.importing does the work)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import bpy
+from bpy_extras.io_utils import ImportHelper
+
+from archhead_addon.io.errors import InputError, InputWarning
+from archhead_blender.importing import import_sequence
+from archhead_blender.preferences import get_preferences
+
+
 class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
     """Import a tracked FLAME sequence as a rigged, shape-keyed, animated head"""
 

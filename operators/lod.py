@@ -1,3 +1,13 @@
+"""Drive LOD by Camera Distance (archhead_blender.lod_driver installs the driver)."""
+
+from __future__ import annotations
+
+import bpy
+
+from archhead_blender.avatar_objects import active_avatar
+from archhead_blender.lod_driver import drive_lod_by_distance
+
+
 class ARCHHEAD_OT_drive_lod(bpy.types.Operator):
     """Drive the avatar's level of detail by the scene camera's distance to the head"""
 

@@ -1,3 +1,16 @@
+"""Export Gaussians (PLY): the current frame or a range (archhead_blender.ply_files)."""
+
+from __future__ import annotations
+
+import bpy
+from bpy_extras.io_utils import ExportHelper
+
+from archhead_addon.avatar.frame_selection import parse_frames
+from archhead_addon.io.errors import InputError
+from archhead_blender.avatar_objects import active_avatar
+from archhead_blender.ply_files import export_ply
+
+
 class ARCHHEAD_OT_export_ply(bpy.types.Operator, ExportHelper):
     """Export the avatar's Gaussians as 3DGS PLY files (current frame or a range)"""
 

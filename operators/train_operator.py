@@ -1,3 +1,29 @@
+"""Train Avatar and Cancel Training: a modal operator around archhead_blender.training.
+
+Its properties' defaults are the command line's preset (train/config.py DEFAULT_PRESET); only
+the ones the user set override it, so both start the same avatar."""
+
+from __future__ import annotations
+
+import time
+
+import bpy
+
+from archhead_addon.io.errors import InputError
+from archhead_addon.train.config import config_data
+from archhead_blender.avatar_objects import head_of
+from archhead_blender.training import (
+    POLL_S,
+    current_run,
+    finish_training,
+    start_training,
+    training_settings,
+)
+
+PRESET = config_data()  # read once: the properties' defaults
+OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
+
+
 class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
     """Train an avatar from video frames and their tracking in a background process"""
 
@@ -11,13 +37,16 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
                                                    "the importer reads)")
     out_dir: bpy.props.StringProperty(name="Output", subtype="DIR_PATH",
                                       description="Checkpoints, config and log go here")
-    resolution: bpy.props.IntProperty(name="Resolution", min=32, default=256)
-    stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0, default=1000)
-    stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0, default=500)
+    resolution: bpy.props.IntProperty(name="Resolution", min=32, default=PRESET["resolution"])
+    stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0,
+                                        default=PRESET["stage1_steps"])
+    stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0,
+                                        default=PRESET["stage2_steps"])
     resume: bpy.props.BoolProperty(name="Resume", description="Continue the run in Output")
     base_config: bpy.props.StringProperty(
         name="Base config", subtype="FILE_PATH",
-        description="Optional training config (JSON); the fields above override its values")
+        description="Optional training config (JSON) in place of the command line's preset; "
+                    "the fields above override its values where you changed them")
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self, width=420)
@@ -25,11 +54,8 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
     def execute(self, context):
         head = head_of(context.active_object)
         try:
-            settings = {}
-            if self.base_config:
-                settings = json.loads(Path(bpy.path.abspath(self.base_config)).read_text())
-            settings.update(resolution=self.resolution, stage1_steps=self.stage1_steps,
-                            stage2_steps=self.stage2_steps)
+            settings = training_settings(self.overrides(), bpy.path.abspath(self.base_config)
+                                         if self.base_config else "")
             self.run = start_training(context, bpy.path.abspath(self.frames_dir),
                                       bpy.path.abspath(self.tracking),
                                       bpy.path.abspath(self.out_dir), settings, self.resume,
@@ -45,6 +71,11 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
         self.timer = wm.event_timer_add(POLL_S, window=context.window)
         wm.modal_handler_add(self)
         return {"RUNNING_MODAL"}
+
+    def overrides(self) -> dict:
+        """The fields the user (or a script) set; the rest come from the base config."""
+        return {name: getattr(self, name) for name in OVERRIDABLE
+                if self.properties.is_property_set(name)}
 
     def modal(self, context, event):
         if event.type != "TIMER":

@@ -1,7 +1,7 @@
 """Import a tracked sequence and save a .blend, without the UI.
 
-    blender -b --python operators/script_import.py -- SEQUENCE OUT.blend [--stride N] ...
-    python operators/script_import.py SEQUENCE OUT.blend ...      (the `bpy` module)
+    blender -b --python scripts/import_sequence.py -- SEQUENCE OUT.blend [--stride N] ...
+    python scripts/import_sequence.py SEQUENCE OUT.blend ...      (the `bpy` module)
 
 SEQUENCE `demo` imports the built-in talking-head trajectory on the built-in model.
 
@@ -18,41 +18,12 @@ from pathlib import Path
 
 import bpy
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-TEMP_REPO = "archhead_checkout"
-
-
-def enable_addon() -> str:
-    """Enable ArchHead and return its module name."""
-    for addon in bpy.context.preferences.addons:
-        if addon.module.endswith(".archhead"):
-            return addon.module
-    installed = [m for m in _extension_modules() if m.endswith(".archhead")]
-    if installed:
-        module = installed[0]
-    else:
-        folder = Path(tempfile.mkdtemp(prefix="archhead_repo_"))
-        (folder / "archhead").symlink_to(REPO_ROOT, target_is_directory=True)
-        bpy.context.preferences.extensions.repos.new(
-            name=TEMP_REPO, module=TEMP_REPO, custom_directory=str(folder), source="USER")
-        module = f"bl_ext.{TEMP_REPO}.archhead"
-    bpy.ops.preferences.addon_enable(module=module)
-    return module
-
-
-def _extension_modules():
-    import addon_utils
-
-    return [mod.__name__ for mod in addon_utils.modules()]
+from archhead_blender import api
 
 
 def _write_demo_sequence() -> str:
-    sys.path.insert(0, str(REPO_ROOT))
-    from archhead_addon.sequences import write_canonical
-    from archhead_addon.sequences.demo import demo_sequence
-
     path = Path(tempfile.mkdtemp(prefix="archhead_demo_")) / "demo.npz"
-    write_canonical(demo_sequence(), path)
+    api.write_canonical(api.demo_sequence(), path)
     return str(path)
 
 
@@ -69,7 +40,7 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--correctives", choices=("DRIVERS", "KEYFRAMES", "NONE"),
                         default="DRIVERS")
     args = parser.parse_args(argv)
-    enable_addon()
+    api.enable_addon()
     if args.sequence == "demo":
         args.sequence = _write_demo_sequence()
     result = bpy.ops.archhead.import_sequence(
@@ -83,4 +54,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
+    main(api.script_args(sys.argv))

@@ -14,8 +14,9 @@ import argparse
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from ..timing import time_calls
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 PAPER_COUNTS = (45876, 2829)  # Table 3 of the paper: Gaussians at l = 0 and l = 1
@@ -40,15 +41,8 @@ def count_table(raster, config, step: float = 0.05) -> list[tuple[float, int, in
 
 def _timed(fn, repeats: int) -> tuple[float, float]:
     """(median, min) milliseconds of fn() after one warm-up call."""
-    import numpy as np
-
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times)), 1e3 * min(times)
+    timing = time_calls(fn, repeats, warmup=1)
+    return timing.median_ms, timing.min_ms
 
 
 def main(argv=None) -> None:
@@ -100,9 +94,7 @@ def main(argv=None) -> None:
     fp32 = {}
     for lod in (0.0, 0.25, 0.5, 0.75, 1.0):
         size = runtime.resolution(lod)
-        start = time.perf_counter()
-        runtime.decode(lod, **codes)
-        build = 1e3 * (time.perf_counter() - start)
+        build = time_calls(lambda lod=lod: runtime.decode(lod, **codes), 1).min_ms
         fp32[lod] = _timed(lambda lod=lod: runtime.decode(lod, **codes), args.repeats)
         fp16 = _timed(lambda lod=lod: runtime.decode(lod, precision="fp16", **codes),
                       args.repeats)

@@ -5,7 +5,7 @@
         [--ablations [--steps N] [--ablation-config F]]
 
 Per level of detail (steps of --step): Gaussians, numpy decode ms (fp32, fp16), the splat
-kernel's ms at 512², Blender's update ms for a LOD change (operators/bench_lod.py --sweep, in a
+kernel's ms at 512², Blender's update ms for a LOD change (benchmarks/blender_lod.py --sweep, in a
 child process through the bpy module), test L1 / PSNR / SSIM / ST-LPIPS; the error-against-
 run-time curve; the image change between neighbouring levels; the LOD 1 : LOD 0 ratios beside
 the paper's; the stability sweep; with --ablations, table 4's variants trained by the project's
@@ -63,10 +63,11 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def blender_update_ms(avatar: Path, step: float, repeats: int) -> dict[float, float]:
-    """{l: median ms of a LOD change in Blender} from operators/bench_lod.py --sweep."""
+    """{l: median ms of a LOD change in Blender} from benchmarks/blender_lod.py --sweep (a
+    checkout's benchmark, run as a module from the checkout's root)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "lod.json"
-        subprocess.run([sys.executable, str(REPO_ROOT / "operators" / "bench_lod.py"),
+        subprocess.run([sys.executable, "-m", "benchmarks.blender_lod",
                         "--checkpoint", str(avatar.resolve()), "--sweep", str(step),
                         "--json", str(out), "--repeats", str(repeats)], check=True,
                        stdout=subprocess.DEVNULL)
@@ -118,7 +119,7 @@ def run(args) -> Path:
         f"the test frames. Kernel: SH colour + the C++ splat at {report.KERNEL_SIZE}², median "
         f"of {args.repeats}. Blender update: setting the avatar's level of detail to a new "
         "value through an evaluated depsgraph (handler, decode, point writes, Geometry Nodes; "
-        "`operators/bench_lod.py --sweep`). Frame = fp32 decode + kernel. Errors: fp32 on the "
+        "`benchmarks/blender_lod.py --sweep`). Frame = fp32 decode + kernel. Errors: fp32 on the "
         "test frames at the training resolution.\n\n" + report.lod_table(rows, update),
         f"![error against run time]({FIGURES[0]})",
         "## LOD 1 against LOD 0, beside the paper\n\n" + report.ratio_table(rows),

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from ..timing import time_calls
 from . import kernel, scenes
 
 SIZES = (3_000, 18_000, 46_000)
@@ -24,12 +25,7 @@ RESOLUTIONS = (256, 512)
 
 
 def best_of(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * min(times)
+    return time_calls(fn, repeats).min_ms
 
 
 def time_kernel(scene: scenes.Scene, threads: int, repeats: int):

@@ -23,8 +23,9 @@ from typing import TYPE_CHECKING
 
 from ..io.errors import InputError, InputWarning
 from .config import DEFAULT_PRESET, PRESETS, TrainConfig
+from .progress import DONE, ERROR, START, Progress
+from .progress import INTERRUPTED as INTERRUPTED_EVENT
 from .run_folder import RunFolder
-from .progress import Progress
 
 if TYPE_CHECKING:
     from .loop import Trainer
@@ -100,7 +101,7 @@ def setup(args, progress: Progress) -> Trainer:
     else:
         trainer = loop.Trainer.create(config, frames, model, dataset.sequence.shape[0],
                                       args.out, dataset.background, device)
-    progress.event("start", step=trainer.step, total=config.total_steps, device=str(device),
+    progress.event(START, step=trainer.step, total=config.total_steps, device=str(device),
                    renderer=trainer.backend, frames=len(frames), resolution=list(dataset.size))
     progress.message(f"training on {len(frames)} frames of {dataset.size[1]}x"
                      f"{dataset.size[0]} px, {device}, renderer {trainer.backend}"
@@ -111,7 +112,7 @@ def setup(args, progress: Progress) -> Trainer:
 def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
 
     finished = trainer.run(progress.step, progress.checkpoint, stop)
-    kind = "done" if finished else "interrupted"
+    kind = DONE if finished else INTERRUPTED_EVENT
     avatar = RunFolder(trainer.out_dir).avatar
     total = trainer.config.total_steps
     progress.event(kind, step=trainer.step, total=total, avatar=str(avatar),
@@ -133,7 +134,7 @@ def main(argv=None) -> int:
             try:
                 trainer = setup(args, progress)
             except (InputError, ValueError) as exc:
-                progress.event("error", message=str(exc))
+                progress.event(ERROR, message=str(exc))
                 progress.message(f"error: {exc}")
                 return 2
             return train(trainer, progress, stop)
