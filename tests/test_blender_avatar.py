@@ -44,15 +44,15 @@ def avatar(scene_setup):
 
 
 def _batch(setup):
-    return importlib.import_module(f"{setup['addon'].__name__}.operators.batch_render")
+    return importlib.import_module("archhead_blender.batch_render")
 
 
 def _session(setup):
-    return setup["addon"].operators.avatar_session.session(setup["obj"])
+    return importlib.import_module("archhead_blender.avatar_session").session(setup["obj"])
 
 
 def _points(setup):
-    return setup["addon"].operators.point_instances.read_points(setup["obj"])
+    return importlib.import_module("archhead_blender.point_instances").read_points(setup["obj"])
 
 
 def _expected(setup, frame: int, lod: float) -> SplatFrame:
@@ -129,7 +129,7 @@ def test_lod_changes_follow_the_table(avatar):
 
 
 def test_decode_frames_hold_and_disk_cache(avatar, tmp_path):
-    addon, obj = avatar["addon"], avatar["obj"]
+    obj = avatar["obj"]
     settings = obj.archhead_avatar
     settings.decode_frames, settings.stride = "STRIDE", 3
     settings.disk_cache, settings.cache_dir = True, str(tmp_path / "cache")
@@ -147,7 +147,7 @@ def test_decode_frames_hold_and_disk_cache(avatar, tmp_path):
         np.testing.assert_allclose(_points(avatar)["position"], _expected(avatar, 3, 0.0).means,
                                    atol=2e-5)
         # a new session (a reopened file, another machine) reads frames from the disk cache
-        addon.operators.avatar_session.drop_sessions()
+        importlib.import_module("archhead_blender.state").reset()
         bpy.context.scene.frame_set(4)
         runtime = _session(avatar).runtime
         assert runtime.level.cache_info().misses == 0  # nothing was decoded
@@ -241,7 +241,7 @@ def test_ply_export_round_trip(avatar, tmp_path):
 
 
 def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
-    """`python operators/script_batch.py scene.blend --exact ...` renders with the kernel;
+    """`python scripts/batch_render.py scene.blend --exact ...` renders with the kernel;
     its image matches Cycles' render of the point instances."""
     scene = bpy.context.scene
     avatar["obj"].archhead_avatar.view_dependent = True  # the splat evaluates the full SH
@@ -253,7 +253,7 @@ def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
     out = tmp_path / "exact"
-    result = subprocess.run([sys.executable, str(REPO_ROOT / "operators/script_batch.py"),
+    result = subprocess.run([sys.executable, str(REPO_ROOT / "scripts/batch_render.py"),
                              str(blend), "--frames", "2", "--lod", "0.5", "--exact", "--out",
                              str(out)], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]

@@ -30,7 +30,7 @@ def setup(tmp_path_factory):
     write_canonical(seq, folder / "track.npz")
     config = folder / "tiny.json"
     config.write_text(json.dumps(TINY))
-    module = importlib.import_module(f"{addon.__name__}.operators.train_operator")
+    module = importlib.import_module("archhead_blender.training")
     return {"folder": folder, "head": head, "video": video, "config": config, "ops": module}
 
 

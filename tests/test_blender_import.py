@@ -124,7 +124,7 @@ def test_script_imports_and_saves_blend(tmp_path):
     seq_path = tmp_path / "clip.npz"
     write_canonical(demo_sequence(frames=8), seq_path)
     out = tmp_path / "clip.blend"
-    proc = subprocess.run([sys.executable, str(REPO_ROOT / "operators/script_import.py"),
+    proc = subprocess.run([sys.executable, str(REPO_ROOT / "scripts/import_sequence.py"),
                            str(seq_path), str(out), "--stride", "2", "--expressions", "20"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]

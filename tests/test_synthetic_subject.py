@@ -23,7 +23,7 @@ from archhead_addon.train.dataset import FrameDataset
 from archhead_addon.train.parts_mask import rasterize
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = REPO_ROOT / "operators" / "synthetic_subject.py"
+SCRIPT = REPO_ROOT / "scripts" / "synthetic_subject.py"
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
 FPS = 25.0
 
@@ -106,7 +106,7 @@ def test_folder_writes_frame_and_mask_and_clears_an_earlier_run(tmp_path):
 def test_render_script_imports_only_bpy_and_numpy():
     """Blender's Python has numpy but neither torch nor Pillow."""
     pytest.importorskip("bpy")
-    code = (f"import sys; sys.path.insert(0, {str(SCRIPT.parent)!r}); import synthetic_subject; "
+    code = ("import sys; import archhead_blender.synthetic_subject; "
             "extra = {'torch', 'PIL', 'OpenEXR', 'scipy'} & set(sys.modules); "
             "assert not extra, extra")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

@@ -23,7 +23,7 @@ def tiny_subject(tmp_path_factory) -> Path:
     """8 frames of 48x48 px: 7 train, 1 test."""
     folder = tmp_path_factory.getbasetemp() / "tiny_subject"
     if not (folder / "tracking.npz").exists():
-        subprocess.run([sys.executable, str(REPO_ROOT / "operators" / "synthetic_subject.py"),
+        subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "synthetic_subject.py"),
                         "--out", str(folder), "--frames", str(FRAMES), "--size", str(SIZE),
                         "--samples", "8"], check=True, capture_output=True, timeout=300)
     return folder

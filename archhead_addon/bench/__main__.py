@@ -30,7 +30,6 @@ from pathlib import Path
 from ..io.atomic import write_bytes_atomic
 from ..io.cli import run_command
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
 FIGURES = ("error_vs_time.png", "lod_smoothness.png")
 DOCS_REPORT = "bench_report.md"
 

@@ -39,8 +39,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--data", type=Path, required=True, help="training data folder")
     p.add_argument("--out", type=Path, required=True, help="output folder of the run")
     p.add_argument("--config", default=DEFAULT_PRESET, help=f"config file, or a preset: "
-                   f"{', '.join(PRESETS)} (default: {DEFAULT_PRESET}); ignored with --resume, which "
-                   "uses the run's own")
+                   f"{', '.join(PRESETS)} (default: {DEFAULT_PRESET}); ignored with --resume, "
+                   "which uses the run's own")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from "
                    "its last checkpoint")
     p.add_argument("--progress-json", action="store_true", help="one JSON object per line on "

@@ -13,7 +13,6 @@ renders go through the batch path (operators/batch_render.py) that the command l
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import tempfile
 import time
@@ -23,14 +22,14 @@ import bpy
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(REPO), str(REPO / "operators"), str(REPO / "tests")]
+sys.path[:0] = [str(REPO / "tests")]  # a test helper, not a package
 from avatar_env import load_rgba  # noqa: E402
-from script_import import enable_addon  # noqa: E402
 
 from archhead_addon.io.atomic import write_bytes_atomic  # noqa: E402
 from archhead_addon.sequences import write_canonical  # noqa: E402
 from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
 from archhead_addon.synthetic.png import encode_png  # noqa: E402
+from archhead_blender import api  # noqa: E402
 
 FRAME = 12
 GREY = 0.12
@@ -58,8 +57,8 @@ def main(argv) -> None:
     from archhead_addon.avatar.model import ArchHeadAvatar
     from archhead_addon.flame import load_model
 
-    module = enable_addon()
-    batch = importlib.import_module(f"{module}.operators.batch_render")
+    api.enable_addon()
+    batch = api
     folder = Path(tempfile.mkdtemp(prefix="archhead_pair_"))
     torch.manual_seed(0)
     save_avatar(folder / "avatar.npz", ArchHeadAvatar.create(load_model()))
