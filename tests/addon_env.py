@@ -36,3 +36,8 @@ def installed_addon():
         _state["module"] = importlib.import_module(ADDON_MODULE)
         _state["zip"] = zip_path
     return _state["module"]
+
+
+def state() -> dict:
+    """What installed_addon() built: {"module", "zip"}."""
+    return _state
