@@ -13,11 +13,12 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from archhead_addon.avatar.decode_cache import SplatFrame
 from archhead_addon.avatar.frame_selection import contiguous_runs
 from archhead_addon.camera import BlenderCamera
-from archhead_addon.export.transform import transform_gaussians
+from archhead_addon.export.transform import transform_frame
 from archhead_addon.io.atomic import write_bytes_atomic
-from archhead_addon.splat.blender_render import render_from_blender_camera
+from archhead_addon.splat.blender_render import render_frame_from_blender_camera
 from archhead_addon.synthetic.png import encode_png
 
 from .avatar_props import is_avatar
@@ -96,16 +97,13 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
     scene.frame_set(frame)
     depsgraph = context.evaluated_depsgraph_get()
     parts = []
-    for obj in avatars:
+    for obj in avatars:  # every avatar in Blender's world space, then one image of them all
         _, splat = frame_to_show(obj, scene, depsgraph)
-        world = np.array(obj.evaluated_get(depsgraph).matrix_world)
-        means, log_scales, quats, sh = transform_gaussians(world, splat.means, splat.log_scales,
-                                                           splat.quats, splat.sh)
-        parts.append((means, quats, log_scales, splat.opacity_logits, sh))
+        parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
     camera = blender_camera(scene)
-    arrays = [np.concatenate(a) for a in zip(*parts, strict=True)]
-    raster = render_from_blender_camera(
-        *arrays, camera, np.array(scene.camera.evaluated_get(depsgraph).matrix_world),
+    raster = render_frame_from_blender_camera(
+        SplatFrame.concatenate(parts), camera,
+        np.array(scene.camera.evaluated_get(depsgraph).matrix_world),
         np.eye(4), num_threads=scene.render.threads if scene.render.threads_mode == "FIXED"
         else 0)
     path = out_dir / f"frame_{frame:04d}.png"

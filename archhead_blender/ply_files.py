@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from archhead_addon.export.ply import write_ply
-from archhead_addon.export.transform import transform_gaussians
+from archhead_addon.export.transform import transform_frame
 
 from .handlers import frame_to_show
 
@@ -41,12 +41,10 @@ def export_ply(context, obj, path, frames=None, space: str = "FLAME") -> list[Pa
                 scene.frame_set(frame)
             depsgraph = context.evaluated_depsgraph_get()
             _, splat = frame_to_show(obj, scene, depsgraph)
-            arrays = (splat.means, splat.log_scales, splat.quats, splat.sh)
             if space == "WORLD":
-                world = np.array(obj.evaluated_get(depsgraph).matrix_world)
-                arrays = transform_gaussians(world, *arrays)
-            means, log_scales, quats, sh = arrays
-            write_ply(target, means, log_scales, quats, splat.opacity_logits, sh)
+                splat = transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world),
+                                        splat)
+            write_ply(target, **splat.arrays())
             written.append(target)
     finally:
         if scene.frame_current != start:

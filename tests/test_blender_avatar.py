@@ -20,6 +20,8 @@ from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.camera import FLAME_TO_BLENDER
 from archhead_addon.export.ply import read_ply, rows_to_gaussians
 
+pytestmark = pytest.mark.blender
+
 SEQ_CODES = ("expr", "jaw", "neck", "eyes", "rotation", "translation")
 
 

@@ -14,6 +14,8 @@ from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.sequences import read_sequence, write_canonical
 from archhead_addon.synthetic.png import encode_png
 
+pytestmark = [pytest.mark.blender, pytest.mark.slow]
+
 TINY = {"lods_per_step": 2, "checkpoint_every": 1000,
         "avatar": {"s_max": 64, "s_min": 32, "levels": [64, 32], "feature_dim": 16}}
 

@@ -19,6 +19,8 @@ from archhead_addon.sequences.canonical import write_canonical
 from archhead_addon.sequences.demo import demo_sequence
 from archhead_addon.sequences.sequence import Sequence
 
+pytestmark = pytest.mark.blender
+
 WIDTH, HEIGHT = 640, 480
 
 

@@ -16,6 +16,8 @@ from archhead_addon.splat.blender_render import (
     render_from_blender_camera,
 )
 
+pytestmark = pytest.mark.blender
+
 CAMERAS = [
     BlenderCamera(lens=50.0, sensor_width=36.0, shift_x=0.0, shift_y=0.0, resolution_x=64,
                   resolution_y=48),

@@ -17,6 +17,8 @@ from archhead_addon.train.config import TrainConfig
 from archhead_addon.train.dataset import FrameDataset
 from archhead_addon.train.loop import STATE_FILE, Trainer, frames_on_device, load_state
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def subject(tmp_path_factory):

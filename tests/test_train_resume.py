@@ -12,6 +12,8 @@ from training_subject import REPO_ROOT, tiny_subject, write_config
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.train.loop import STATE_FILE, load_state
 
+pytestmark = pytest.mark.slow
+
 TOTAL = 40
 
 

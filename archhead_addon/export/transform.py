@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..avatar.decode_cache import SplatFrame
 from ..avatar.gaussians import quat_multiply
 from ..rotations import matrix_to_quaternion
 from ..splat.sh import degree_from_coeffs, sh_basis
@@ -59,3 +60,11 @@ def transform_gaussians(matrix, means, log_scales, quats, sh) -> tuple[np.ndarra
     return ((np.asarray(means, np.float64) @ (scale * rotation).T + translation).astype(f32),
             (np.asarray(log_scales, np.float64) + np.log(scale)).astype(f32), q.astype(f32),
             np.einsum("ij,njc->nic", turn, sh).astype(f32))
+
+
+def transform_frame(matrix, frame: SplatFrame) -> SplatFrame:
+    """The frame after `matrix` (opacities unchanged), fields matched by name."""
+    means, log_scales, quats, sh = transform_gaussians(
+        matrix, frame.means, frame.log_scales, frame.quats, frame.sh)
+    return SplatFrame(means=means, log_scales=log_scales, quats=quats,
+                      opacity_logits=frame.opacity_logits, sh=sh, resolution=frame.resolution)
