@@ -17,16 +17,25 @@ from .sequences import FORMAT_NAMES, read_sequence, write_canonical
 
 
 def _add_convert(commands) -> None:
-    p = commands.add_parser("convert", help="convert a tracked sequence to ArchHead's .npz",
-                            description="Read a tracked FLAME sequence and write ArchHead's "
-                            "canonical .npz (docs/formats.md).")
+    p = commands.add_parser(
+        "convert",
+        help="convert a tracked sequence to ArchHead's .npz",
+        description="Read a tracked FLAME sequence and write ArchHead's "
+        "canonical .npz (docs/formats.md).",
+    )
     p.add_argument("input", help="sequence file or folder")
     p.add_argument("output", help="canonical .npz to write (replaced atomically)")
     p.add_argument("--format", choices=FORMAT_NAMES, help="input format (default: detected)")
-    p.add_argument("--fps", type=float, help="frame rate, for formats that store none (or to "
-                   "override the stored one)")
-    p.add_argument("--camera", type=int, help="camera_index of a multi-view VHAP / "
-                   "GaussianAvatars folder (default: the lowest)")
+    p.add_argument(
+        "--fps",
+        type=float,
+        help="frame rate, for formats that store none (or to override the stored one)",
+    )
+    p.add_argument(
+        "--camera",
+        type=int,
+        help="camera_index of a multi-view VHAP / GaussianAvatars folder (default: the lowest)",
+    )
     p.set_defaults(run=_convert)
 
 
@@ -34,8 +43,10 @@ def _convert(args) -> int:
     seq = read_sequence(args.input, args.format, fps=args.fps, camera=args.camera)
     write_canonical(seq, args.output)
     camera = f"{seq.image_size[1]}x{seq.image_size[0]}" if seq.has_camera else "none"
-    print(f"{args.output}: {len(seq)} frames, {seq.fps:g} fps, from {seq.format}, shape "
-          f"{seq.shape.shape[1]}, expr {seq.expr.shape[1]}, camera {camera}")
+    print(
+        f"{args.output}: {len(seq)} frames, {seq.fps:g} fps, from {seq.format}, shape "
+        f"{seq.shape.shape[1]}, expr {seq.expr.shape[1]}, camera {camera}"
+    )
     return 0
 
 
@@ -43,10 +54,13 @@ DEMO_MODULE = "scripts.demo"
 
 
 def _add_demo(commands) -> None:
-    p = commands.add_parser("demo", help="the whole pipeline on the built-in head (bpy module)",
-                            description="Synthetic subject, short training (or --checkpoint), "
-                            "import, decode, LOD driver on a dolly-in camera, clip, contact "
-                            "sheet, .blend: scripts/demo.py, whose options it takes.")
+    p = commands.add_parser(
+        "demo",
+        help="the whole pipeline on the built-in head (bpy module)",
+        description="Synthetic subject, short training (or --checkpoint), "
+        "import, decode, LOD driver on a dolly-in camera, clip, contact "
+        "sheet, .blend: scripts/demo.py, whose options it takes.",
+    )
     p.set_defaults(run=_demo, passes_on=True)  # every other argument goes to the script
 
 
@@ -61,8 +75,9 @@ COMMANDS = (_add_convert, _add_demo)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m archhead_addon",
-                                     description="ArchHead command line tools.")
+    parser = argparse.ArgumentParser(
+        prog="python -m archhead_addon", description="ArchHead command line tools."
+    )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in COMMANDS:
         add(commands)

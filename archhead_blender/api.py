@@ -35,11 +35,30 @@ from .synthetic_subject import DEFAULT_SAMPLES as SUBJECT_SAMPLES
 from .synthetic_subject import render_subject
 
 __all__ = [
-    "RunFolder", "SUBJECT_SAMPLES", "Steps", "avatar_lod", "decode_frames", "demo_sequence",
-    "drive_lod_by_distance", "enable_addon", "frame_codes", "load_model", "parse_frames",
-    "point_attributes", "python_with_torch", "render_frames", "render_subject",
-    "resolution_for_lod", "scene_avatars", "script_args", "session", "time_calls",
-    "train_command", "untrained_checkpoint", "write_canonical", "write_points",
+    "RunFolder",
+    "SUBJECT_SAMPLES",
+    "Steps",
+    "avatar_lod",
+    "decode_frames",
+    "demo_sequence",
+    "drive_lod_by_distance",
+    "enable_addon",
+    "frame_codes",
+    "load_model",
+    "parse_frames",
+    "point_attributes",
+    "python_with_torch",
+    "render_frames",
+    "render_subject",
+    "resolution_for_lod",
+    "scene_avatars",
+    "script_args",
+    "session",
+    "time_calls",
+    "train_command",
+    "untrained_checkpoint",
+    "write_canonical",
+    "write_points",
 ]
 
 ADDON_ID = "archhead"  # blender_manifest.toml's id: Blender names the module bl_ext.<repo>.<id>
@@ -48,7 +67,7 @@ CHECKOUT_REPO = "archhead_checkout"
 
 def script_args(argv: list[str]) -> list[str]:
     """A script's own arguments: after `--` under `blender -b --python`, else argv[1:]."""
-    return argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
+    return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
 
 
 def enable_addon() -> str:
@@ -69,12 +88,15 @@ def enable_addon() -> str:
 def _checkout_extension() -> str:
     root = Path(__file__).resolve().parents[1]
     if not (root / "blender_manifest.toml").is_file():
-        raise RuntimeError("ArchHead is not installed in this Blender: install the extension "
-                           "(make extension) and enable it")
+        raise RuntimeError(
+            "ArchHead is not installed in this Blender: install the extension "
+            "(make extension) and enable it"
+        )
     folder = Path(tempfile.mkdtemp(prefix="archhead_repo_"))
     (folder / ADDON_ID).symlink_to(root, target_is_directory=True)
     bpy.context.preferences.extensions.repos.new(
-        name=CHECKOUT_REPO, module=CHECKOUT_REPO, custom_directory=str(folder), source="USER")
+        name=CHECKOUT_REPO, module=CHECKOUT_REPO, custom_directory=str(folder), source="USER"
+    )
     return f"bl_ext.{CHECKOUT_REPO}.{ADDON_ID}"
 
 

@@ -35,8 +35,9 @@ def head_of(obj):
 
 def avatar_of(head):
     """The point object showing this head's avatar, if there is one."""
-    return next((o for o in bpy.data.objects if is_avatar(o) and o.archhead_avatar.head == head),
-                None)
+    return next(
+        (o for o in bpy.data.objects if is_avatar(o) and o.archhead_avatar.head == head), None
+    )
 
 
 def active_avatar(context):
@@ -52,10 +53,13 @@ def head_facts(head) -> HeadFacts:
         loop_uvs = np.empty(2 * len(mesh.loops), np.float32)
         mesh.uv_layers.active.data.foreach_get("uv", loop_uvs)
         loop_uvs = loop_uvs.reshape(-1, 2).astype(np.float64)
-    return HeadFacts(model_id=str(head.get("archhead_model_id", "")),
-                     n_faces=len(mesh.polygons),
-                     identity=np.asarray(head.get("archhead_identity", []), np.float64),
-                     n_expr=int(head.get("archhead_n_expr", 0)), loop_uvs=loop_uvs)
+    return HeadFacts(
+        model_id=str(head.get("archhead_model_id", "")),
+        n_faces=len(mesh.polygons),
+        identity=np.asarray(head.get("archhead_identity", []), np.float64),
+        n_expr=int(head.get("archhead_n_expr", 0)),
+        loop_uvs=loop_uvs,
+    )
 
 
 def load_avatar(context, head, path) -> tuple[bpy.types.Object, list[str]]:
@@ -68,8 +72,7 @@ def load_avatar(context, head, path) -> tuple[bpy.types.Object, list[str]]:
         raise InputError(path, None, "; ".join(found.errors))
     obj, created = avatar_of(head), None
     if obj is None:
-        collection = head.users_collection[0] if head.users_collection \
-            else context.scene.collection
+        collection = head.users_collection[0] if head.users_collection else context.scene.collection
         obj = created = create_point_object(f"{head.name}_avatar", head_rig(head), collection)
     drop_session(obj)  # the same path may hold a new checkpoint (a finished training run)
     settings = obj.archhead_avatar
@@ -90,12 +93,19 @@ def load_avatar(context, head, path) -> tuple[bpy.types.Object, list[str]]:
 def _make_room(head, scene) -> None:
     """The head mesh stays evaluated (its shape keys drive the avatar) but no longer renders:
     ray visibility off (EEVEE and Cycles), a wireframe in the viewport."""
-    for flag in ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
-                 "visible_volume_scatter", "visible_shadow"):
+    for flag in (
+        "visible_camera",
+        "visible_diffuse",
+        "visible_glossy",
+        "visible_transmission",
+        "visible_volume_scatter",
+        "visible_shadow",
+    ):
         setattr(head, flag, False)
     head.display_type = "WIRE"
     scene.render.use_lock_interface = True  # the handlers edit the points during renders
     cycles = getattr(scene, "cycles", None)
     if cycles is not None:
-        cycles.transparent_max_bounces = max(cycles.transparent_max_bounces,
-                                             CYCLES_TRANSPARENT_BOUNCES)
+        cycles.transparent_max_bounces = max(
+            cycles.transparent_max_bounces, CYCLES_TRANSPARENT_BOUNCES
+        )

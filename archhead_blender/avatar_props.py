@@ -18,47 +18,102 @@ def _tag(self, _context):
 
 class ArchHeadAvatarSettings(bpy.types.PropertyGroup):
     checkpoint: bpy.props.StringProperty(
-        update=_tag, name="Checkpoint", subtype="FILE_PATH",
-        description="The avatar checkpoint (.npz) this object shows")
+        update=_tag,
+        name="Checkpoint",
+        subtype="FILE_PATH",
+        description="The avatar checkpoint (.npz) this object shows",
+    )
     head: bpy.props.PointerProperty(
-        update=_tag, name="Head", type=bpy.types.Object,
-        description="The imported head whose shape keys and bones drive the avatar")
+        update=_tag,
+        name="Head",
+        type=bpy.types.Object,
+        description="The imported head whose shape keys and bones drive the avatar",
+    )
     lod: bpy.props.FloatProperty(
-        update=_tag, name="Level of detail", min=0.0, max=1.0, default=0.0, precision=3,
-        description="0 = most detail (UV resolution 256), 1 = least (64); animatable")
+        update=_tag,
+        name="Level of detail",
+        min=0.0,
+        max=1.0,
+        default=0.0,
+        precision=3,
+        description="0 = most detail (UV resolution 256), 1 = least (64); animatable",
+    )
     decode_frames: bpy.props.EnumProperty(
-        name="Decode", default="KEYED",
-        items=(("KEYED", "Keyed frames", "Frames that carry a key of the head, its rig or the "
-                "level of detail, in the scene's range"),
-               ("ALL", "Every frame", "Every frame of the scene's range"),
-               ("STRIDE", "Every n-th frame", "Every n-th frame of the scene's range")))
+        name="Decode",
+        default="KEYED",
+        items=(
+            (
+                "KEYED",
+                "Keyed frames",
+                "Frames that carry a key of the head, its rig or the "
+                "level of detail, in the scene's range",
+            ),
+            ("ALL", "Every frame", "Every frame of the scene's range"),
+            ("STRIDE", "Every n-th frame", "Every n-th frame of the scene's range"),
+        ),
+    )
     stride: bpy.props.IntProperty(name="Stride", min=1, default=5)
     between: bpy.props.EnumProperty(
-        update=_tag, name="Between decoded frames", default="LIVE",
-        items=(("LIVE", "Decode live", "Decode the codes the scene has at the frame: Blender "
-                "interpolates them between keys"),
-               ("HOLD", "Hold", "Show the last decoded frame until the next one")))
+        update=_tag,
+        name="Between decoded frames",
+        default="LIVE",
+        items=(
+            (
+                "LIVE",
+                "Decode live",
+                "Decode the codes the scene has at the frame: Blender "
+                "interpolates them between keys",
+            ),
+            ("HOLD", "Hold", "Show the last decoded frame until the next one"),
+        ),
+    )
     identity: bpy.props.EnumProperty(
-        update=_tag, name="Identity", default="HEAD",
-        items=(("HEAD", "Head", "The imported head's identity shape (the avatar sits on the "
-                "head's mesh)"),
-               ("AVATAR", "Avatar", "The identity the avatar was trained with (reenactment "
-                "with another person's tracking)")))
+        update=_tag,
+        name="Identity",
+        default="HEAD",
+        items=(
+            (
+                "HEAD",
+                "Head",
+                "The imported head's identity shape (the avatar sits on the head's mesh)",
+            ),
+            (
+                "AVATAR",
+                "Avatar",
+                "The identity the avatar was trained with (reenactment "
+                "with another person's tracking)",
+            ),
+        ),
+    )
     view_dependent: bpy.props.BoolProperty(
-        update=_tag, name="View-dependent colour", default=False,
+        update=_tag,
+        name="View-dependent colour",
+        default=False,
         description="Evaluate the full spherical harmonics towards the scene camera each "
-                    "frame (otherwise the view-independent DC colour)")
+        "frame (otherwise the view-independent DC colour)",
+    )
     disk_cache: bpy.props.BoolProperty(
-        update=_tag, name="Cache on disk", default=False,
+        update=_tag,
+        name="Cache on disk",
+        default=False,
         description="Keep decoded frames in a folder next to the .blend (shared by renders "
-                    "and render-farm machines)")
+        "and render-farm machines)",
+    )
     cache_dir: bpy.props.StringProperty(
-        update=_tag, name="Cache folder", subtype="DIR_PATH", default="//archhead_cache",
+        update=_tag,
+        name="Cache folder",
+        subtype="DIR_PATH",
+        default="//archhead_cache",
         description="Folder of the disk cache ('//' is the .blend's folder); files are named "
-                    "by avatar, codes and level of detail, so avatars and machines can share it")
+        "by avatar, codes and level of detail, so avatars and machines can share it",
+    )
     memory_mb: bpy.props.IntProperty(
-        update=_tag, name="Memory cache (MB)", min=16, default=1024,
-        description="Decoded frames kept in memory, least recently used dropped first")
+        update=_tag,
+        name="Memory cache (MB)",
+        min=16,
+        default=1024,
+        description="Decoded frames kept in memory, least recently used dropped first",
+    )
 
 
 def register():

@@ -84,9 +84,10 @@ class AvatarSession:
             splat = self.disk.get(key)
         if splat is None:
             kwargs = codes.as_kwargs()
-            kwargs["expr"] = kwargs["expr"][:self.n_expr]
-            gaussians = self.runtime.decode(resolution_for_lod(lod)[0], precision=PRECISION,
-                                            **kwargs)
+            kwargs["expr"] = kwargs["expr"][: self.n_expr]
+            gaussians = self.runtime.decode(
+                resolution_for_lod(lod)[0], precision=PRECISION, **kwargs
+            )
             splat = SplatFrame.from_gaussians(gaussians)
             if self.disk is not None:
                 self.disk.put(key, splat)
@@ -97,8 +98,15 @@ class AvatarSession:
 def _source(obj) -> tuple:
     """The settings a session is built from; a change of any makes a new session."""
     s = obj.archhead_avatar
-    return (bpy.path.abspath(s.checkpoint), s.identity, s.head.name if s.head else "",
-            flame_model_path(), s.disk_cache, bpy.path.abspath(s.cache_dir), s.memory_mb)
+    return (
+        bpy.path.abspath(s.checkpoint),
+        s.identity,
+        s.head.name if s.head else "",
+        flame_model_path(),
+        s.disk_cache,
+        bpy.path.abspath(s.cache_dir),
+        s.memory_mb,
+    )
 
 
 def _disk_cache(settings) -> DiskCache | None:

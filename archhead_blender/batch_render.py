@@ -37,11 +37,18 @@ def blender_camera(scene) -> BlenderCamera:
         raise ValueError("exact splat renders need a perspective scene camera")
     data, r = scene.camera.data, scene.render
     scale = r.resolution_percentage / 100.0
-    return BlenderCamera(lens=data.lens, sensor_width=data.sensor_width, shift_x=data.shift_x,
-                         shift_y=data.shift_y, resolution_x=round(r.resolution_x * scale),
-                         resolution_y=round(r.resolution_y * scale),
-                         pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y,
-                         sensor_fit=data.sensor_fit, sensor_height=data.sensor_height)
+    return BlenderCamera(
+        lens=data.lens,
+        sensor_width=data.sensor_width,
+        shift_x=data.shift_x,
+        shift_y=data.shift_y,
+        resolution_x=round(r.resolution_x * scale),
+        resolution_y=round(r.resolution_y * scale),
+        pixel_aspect_x=r.pixel_aspect_x,
+        pixel_aspect_y=r.pixel_aspect_y,
+        sensor_fit=data.sensor_fit,
+        sensor_height=data.sensor_height,
+    )
 
 
 @contextmanager
@@ -60,8 +67,7 @@ def fixed_lod(avatars, lod: float | None):
 @contextmanager
 def _restored(scene):
     r = scene.render
-    saved = (scene.frame_start, scene.frame_end, scene.frame_step, scene.frame_current,
-             r.filepath)
+    saved = (scene.frame_start, scene.frame_end, scene.frame_step, scene.frame_current, r.filepath)
     try:
         yield
     finally:
@@ -69,8 +75,14 @@ def _restored(scene):
         scene.frame_set(frame)
 
 
-def render_frames(context, frames, out_dir, lod: float | None = None, exact: bool = False,
-                  decode_only: bool = False) -> list[Path]:
+def render_frames(
+    context,
+    frames,
+    out_dir,
+    lod: float | None = None,
+    exact: bool = False,
+    decode_only: bool = False,
+) -> list[Path]:
     """Render `frames` into out_dir/frame_####.<ext>; returns the files written."""
     scene = context.scene
     out_dir = Path(out_dir)
@@ -102,10 +114,12 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
         parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
     camera = blender_camera(scene)
     raster = render_frame_from_blender_camera(
-        SplatFrame.concatenate(parts), camera,
+        SplatFrame.concatenate(parts),
+        camera,
         np.array(scene.camera.evaluated_get(depsgraph).matrix_world),
-        np.eye(4), num_threads=scene.render.threads if scene.render.threads_mode == "FIXED"
-        else 0)
+        np.eye(4),
+        num_threads=scene.render.threads if scene.render.threads_mode == "FIXED" else 0,
+    )
     path = out_dir / f"frame_{frame:04d}.png"
     write_png(path, raster.rgb, raster.alpha)
     return path

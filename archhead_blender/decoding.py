@@ -20,8 +20,9 @@ def decode_set(scene, obj) -> list[int]:
     keyed = ()
     if settings.decode_frames == "KEYED":
         keyed = keyed_frames(head_rig(head), head.data.shape_keys, obj)
-    return frames_to_decode(settings.decode_frames, scene.frame_start, scene.frame_end, keyed,
-                            settings.stride)
+    return frames_to_decode(
+        settings.decode_frames, scene.frame_start, scene.frame_end, keyed, settings.stride
+    )
 
 
 def decode_frame(context, obj, frame: int) -> None:

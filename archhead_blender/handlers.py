@@ -107,11 +107,13 @@ def on_undo(*_args):
     forget_shown()
 
 
-_HANDLERS = ((bpy.app.handlers.frame_change_post, on_frame_change),
-             (bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
-             (bpy.app.handlers.load_post, on_load),
-             (bpy.app.handlers.undo_post, on_undo),
-             (bpy.app.handlers.redo_post, on_undo))
+_HANDLERS = (
+    (bpy.app.handlers.frame_change_post, on_frame_change),
+    (bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
+    (bpy.app.handlers.load_post, on_load),
+    (bpy.app.handlers.undo_post, on_undo),
+    (bpy.app.handlers.redo_post, on_undo),
+)
 
 
 def register():

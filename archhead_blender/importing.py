@@ -19,9 +19,10 @@ def import_sequence(context, path, options: dict | None = None, model_path: str 
     model = head_model(model_path)
     seq = read_sequence(path).fit_to_model(model)
     end = options.pop("frame_end", -1)
-    seq = seq.subset(options.pop("frame_start", 0), None if end < 0 else end + 1,
-                     options.pop("stride", 1))
-    info = {"sequence": str(path), "format": seq.format, "frames": len(seq),
-            "source_fps": seq.fps}
-    return build_head(context, model, seq, ImportOptions(name=Path(path).stem or "ArchHead",
-                                                         **options), info)
+    seq = seq.subset(
+        options.pop("frame_start", 0), None if end < 0 else end + 1, options.pop("stride", 1)
+    )
+    info = {"sequence": str(path), "format": seq.format, "frames": len(seq), "source_fps": seq.fps}
+    return build_head(
+        context, model, seq, ImportOptions(name=Path(path).stem or "ArchHead", **options), info
+    )

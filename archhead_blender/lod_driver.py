@@ -21,9 +21,11 @@ def drive_lod_by_distance(obj, camera, near: float, far: float):
         raise ValueError(f"far ({far}) must be greater than near ({near})")
     obj[NEAR_PROP], obj[FAR_PROP] = float(near), float(far)
     for prop in (NEAR_PROP, FAR_PROP):
-        obj.id_properties_ui(prop).update(min=0.0, subtype="DISTANCE",
-                                          description="Camera distance mapped to LOD 0 (near) "
-                                                      "or LOD 1 (far)")
+        obj.id_properties_ui(prop).update(
+            min=0.0,
+            subtype="DISTANCE",
+            description="Camera distance mapped to LOD 0 (near) or LOD 1 (far)",
+        )
     obj.driver_remove(LOD_PATH)
     driver = obj.driver_add(LOD_PATH).driver
     driver.type = "SCRIPTED"

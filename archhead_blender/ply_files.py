@@ -42,8 +42,7 @@ def export_ply(context, obj, path, frames=None, space: str = "FLAME") -> list[Pa
             depsgraph = context.evaluated_depsgraph_get()
             _, splat = frame_to_show(obj, scene, depsgraph)
             if space == "WORLD":
-                splat = transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world),
-                                        splat)
+                splat = transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat)
             write_ply(target, **splat.arrays())
             written.append(target)
     finally:

@@ -11,7 +11,7 @@ class ArchHeadPreferences(bpy.types.AddonPreferences):
     flame_model_path: bpy.props.StringProperty(
         name="FLAME model",
         description="FLAME 2020 / 2023 generic_model.pkl or a FLAME-format .npz; "
-                    "empty uses the built-in model",
+        "empty uses the built-in model",
         subtype="FILE_PATH",
     )
     backend_python: bpy.props.StringProperty(

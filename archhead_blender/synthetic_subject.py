@@ -69,14 +69,22 @@ def _quiet_stdout():
         os.close(saved)
 
 
-def render_subject(out, frames: int = 300, size: int = 256, samples: int = DEFAULT_SAMPLES,
-                   seed: int = 0, fps: float = 25.0, threads: int = 0,
-                   verbose: bool = True) -> SubjectFolder:
+def render_subject(
+    out,
+    frames: int = 300,
+    size: int = 256,
+    samples: int = DEFAULT_SAMPLES,
+    seed: int = 0,
+    fps: float = 25.0,
+    threads: int = 0,
+    verbose: bool = True,
+) -> SubjectFolder:
     """Render the subject into `out` (progress and a summary on stdout); returns its folder."""
     start = time.perf_counter()
     model = add_teeth(builtin_model())
-    seq = synthetic_sequence(frames, size, seed=seed, fps=fps, n_shape=model.n_shape,
-                             n_expr=model.n_expr)
+    seq = synthetic_sequence(
+        frames, size, seed=seed, fps=fps, n_shape=model.n_shape, n_expr=model.n_expr
+    )
     folder = SubjectFolder(out)
     folder.prepare()
     folder.write_tracking(seq)

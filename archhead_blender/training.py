@@ -103,8 +103,9 @@ def backend_python(context) -> str:
     python = python_with_torch()
     if python is not None:
         return python
-    raise ValueError("set 'Backend Python' in ArchHead's preferences to the Python of an "
-                     "environment with torch")
+    raise ValueError(
+        "set 'Backend Python' in ArchHead's preferences to the Python of an environment with torch"
+    )
 
 
 def prepare_data(frames_dir, tracking, out_dir) -> Path:
@@ -119,8 +120,11 @@ def prepare_data(frames_dir, tracking, out_dir) -> Path:
         return source
     data = Path(out_dir) / "data"
     data.mkdir(parents=True, exist_ok=True)
-    for name, target in (("frames", frames_dir), ("masks", source / "masks"),
-                         ("parts", source / "parts")):
+    for name, target in (
+        ("frames", frames_dir),
+        ("masks", source / "masks"),
+        ("parts", source / "parts"),
+    ):
         link = data / name
         if link.is_symlink():
             link.unlink()
@@ -130,8 +134,15 @@ def prepare_data(frames_dir, tracking, out_dir) -> Path:
     return data
 
 
-def start_training(context, frames_dir, tracking, out_dir, settings: dict,
-                   resume: bool = False, head_name: str | None = None) -> TrainingRun:
+def start_training(
+    context,
+    frames_dir,
+    tracking,
+    out_dir,
+    settings: dict,
+    resume: bool = False,
+    head_name: str | None = None,
+) -> TrainingRun:
     """Write the config, launch the backend, remember the run for the panel."""
     if current_run() is not None:
         raise ValueError("a training run is already going; cancel it first")

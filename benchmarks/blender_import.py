@@ -34,13 +34,27 @@ def main(argv):
     if args.mode:
         print(measure(args.frames, args.expressions, args.mode))
         return
-    print("| frames | expressions | correctives | import s | frame change ms |"
-          " scene memory MB | .blend MB |")
+    print(
+        "| frames | expressions | correctives | import s | frame change ms |"
+        " scene memory MB | .blend MB |"
+    )
     print("|---|---|---|---|---|---|---|")
     for mode in MODES:  # a fresh process each, so memory growth is the scene's alone
-        out = subprocess.run([sys.executable, __file__, "--frames", str(args.frames),
-                              "--expressions", str(args.expressions), "--mode", mode],
-                             check=True, capture_output=True, text=True).stdout
+        out = subprocess.run(
+            [
+                sys.executable,
+                __file__,
+                "--frames",
+                str(args.frames),
+                "--expressions",
+                str(args.expressions),
+                "--mode",
+                mode,
+            ],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
         print(next(line for line in out.splitlines() if line.startswith("| ")))
 
 
@@ -53,17 +67,27 @@ def measure(frames: int, expressions: int, mode: str) -> str:
     bpy.ops.archhead.import_sequence(filepath=str(warmup))  # loads model and code, unmeasured
     bpy.ops.wm.read_homefile(use_empty=True)
     rss_before = _rss_mb()
-    seconds = api.time_calls(lambda: bpy.ops.archhead.import_sequence(
-        filepath=str(path), n_expr=expressions, pose_correctives=mode), 1).min_ms / 1e3
+    seconds = (
+        api.time_calls(
+            lambda: bpy.ops.archhead.import_sequence(
+                filepath=str(path), n_expr=expressions, pose_correctives=mode
+            ),
+            1,
+        ).min_ms
+        / 1e3
+    )
     scene_mb = _rss_mb() - rss_before
     scene = bpy.context.scene
     samples = np.linspace(scene.frame_start, scene.frame_end, 50).astype(int)
-    per_frame = api.time_calls(lambda i: scene.frame_set(int(samples[i])), len(samples),
-                               with_index=True).mean_ms
+    per_frame = api.time_calls(
+        lambda i: scene.frame_set(int(samples[i])), len(samples), with_index=True
+    ).mean_ms
     blend = folder / "bench.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), compress=False)
-    return (f"| {frames} | {expressions} | {mode.lower()} | {seconds:.2f} | {per_frame:.1f} | "
-            f"{scene_mb:.0f} | {blend.stat().st_size / 2**20:.1f} |")
+    return (
+        f"| {frames} | {expressions} | {mode.lower()} | {seconds:.2f} | {per_frame:.1f} | "
+        f"{scene_mb:.0f} | {blend.stat().st_size / 2**20:.1f} |"
+    )
 
 
 def _rss_mb() -> float:

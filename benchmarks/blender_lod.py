@@ -43,8 +43,9 @@ def main(argv) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--checkpoint", help="avatar checkpoint (default: an untrained one)")
-    parser.add_argument("--sweep", type=float, help="time LOD changes at every multiple of "
-                        "this step only")
+    parser.add_argument(
+        "--sweep", type=float, help="time LOD changes at every multiple of this step only"
+    )
     parser.add_argument("--json", help="with --sweep: the file to write the timings to")
     args = parser.parse_args(argv)
     if (args.sweep is None) != (args.json is None):
@@ -56,8 +57,11 @@ def main(argv) -> None:
 
     api.enable_addon()
     folder = Path(tempfile.mkdtemp())
-    checkpoint = Path(args.checkpoint) if args.checkpoint \
+    checkpoint = (
+        Path(args.checkpoint)
+        if args.checkpoint
         else api.untrained_checkpoint(folder / "untrained.npz")
+    )
     bpy.ops.wm.read_homefile(use_empty=True)
     api.write_canonical(api.demo_sequence(frames=30), folder / "demo.npz")
     bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
@@ -85,8 +89,14 @@ def main(argv) -> None:
             lod = round(i * args.sweep, 6)
             set_lod(lod)  # builds this resolution's tables
             total = _ms(lambda i, lod=lod: set_lod(near(lod)), args.repeats)
-            rows.append({"lod": lod, "resolution": runtime.resolution(lod),
-                         "points": len(obj.data.vertices), "update_ms": total})
+            rows.append(
+                {
+                    "lod": lod,
+                    "resolution": runtime.resolution(lod),
+                    "points": len(obj.data.vertices),
+                    "update_ms": total,
+                }
+            )
         Path(args.json).write_text(json.dumps(rows, indent=1))
         return
 
@@ -95,8 +105,9 @@ def main(argv) -> None:
         size = api.resolution_for_lod(lod)[1]
         set_lod(lod)  # builds this resolution's tables
         total = _ms(lambda i, lod=lod: set_lod(near(lod)), args.repeats)
-        codes = api.frame_codes(head, bpy.context.evaluated_depsgraph_get(),
-                                            api.session(obj).joint_dirs)
+        codes = api.frame_codes(
+            head, bpy.context.evaluated_depsgraph_get(), api.session(obj).joint_dirs
+        )
         kwargs = codes.as_kwargs()
         decode = _ms(lambda i, lod=lod, kw=kwargs: runtime.decode(lod, **kw), args.repeats)
         frame = api.session(obj).frame(codes, lod)[1]
@@ -120,16 +131,22 @@ def main(argv) -> None:
             bpy.context.scene.frame_set(frame)
         playback[lod] = _ms(lambda i: bpy.context.scene.frame_set(1 + i % 5), 10)
 
-    print("| l | S | Gaussians | LOD change total ms | decode ms | write points ms "
-          "| first visit of S ms | cached frame change ms |")
+    print(
+        "| l | S | Gaussians | LOD change total ms | decode ms | write points ms "
+        "| first visit of S ms | cached frame change ms |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for lod, size, count, total, decode, write, build in rows:
-        print(f"| {lod:.0f} | {size} | {count:,} | {total:.0f} | {decode:.0f} | {write:.1f} "
-              f"| {build:.0f} | {playback[lod]:.0f} |")
-    print(f"\nScrubbing the slider 0 -> 1 in steps of 0.05 (a new S at every step): "
-          f"{scrub:.0f} ms per change (median)")
+        print(
+            f"| {lod:.0f} | {size} | {count:,} | {total:.0f} | {decode:.0f} | {write:.1f} "
+            f"| {build:.0f} | {playback[lod]:.0f} |"
+        )
+    print(
+        f"\nScrubbing the slider 0 -> 1 in steps of 0.05 (a new S at every step): "
+        f"{scrub:.0f} ms per change (median)"
+    )
 
 
 if __name__ == "__main__":
     _ensure_two_threads()
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
+    main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:])

@@ -12,24 +12,29 @@ from . import (
     train_operator,
 )
 
-_CLASSES = (import_sequence.ARCHHEAD_OT_import_sequence,
-            avatar_load.ARCHHEAD_OT_load_avatar,
-            avatar_decode.ARCHHEAD_OT_decode_avatar,
-            avatar_decode.ARCHHEAD_OT_cancel_decode,
-            lod.ARCHHEAD_OT_drive_lod,
-            ply_export.ARCHHEAD_OT_export_ply,
-            train_operator.ARCHHEAD_OT_train_avatar,
-            train_operator.ARCHHEAD_OT_cancel_training)
+_CLASSES = (
+    import_sequence.ARCHHEAD_OT_import_sequence,
+    avatar_load.ARCHHEAD_OT_load_avatar,
+    avatar_decode.ARCHHEAD_OT_decode_avatar,
+    avatar_decode.ARCHHEAD_OT_cancel_decode,
+    lod.ARCHHEAD_OT_drive_lod,
+    ply_export.ARCHHEAD_OT_export_ply,
+    train_operator.ARCHHEAD_OT_train_avatar,
+    train_operator.ARCHHEAD_OT_cancel_training,
+)
 
 
 def _menu_import(self, context):
-    self.layout.operator(import_sequence.ARCHHEAD_OT_import_sequence.bl_idname,
-                         text="Tracked FLAME sequence (ArchHead)")
+    self.layout.operator(
+        import_sequence.ARCHHEAD_OT_import_sequence.bl_idname,
+        text="Tracked FLAME sequence (ArchHead)",
+    )
 
 
 def _menu_export(self, context):
-    self.layout.operator(ply_export.ARCHHEAD_OT_export_ply.bl_idname,
-                         text="ArchHead Gaussians (.ply)")
+    self.layout.operator(
+        ply_export.ARCHHEAD_OT_export_ply.bl_idname, text="ArchHead Gaussians (.ply)"
+    )
 
 
 def register():

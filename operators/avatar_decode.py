@@ -88,8 +88,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         _redraw_sidebars(context)
         if message:
             self.report({"INFO"}, message)
-        return {"FINISHED"} if message and not message.startswith("Cancelled") \
-            else {"CANCELLED"}
+        return {"FINISHED"} if message and not message.startswith("Cancelled") else {"CANCELLED"}
 
 
 class ARCHHEAD_OT_cancel_decode(bpy.types.Operator):

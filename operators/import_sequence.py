@@ -22,32 +22,57 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
     bl_options = {"REGISTER", "UNDO", "PRESET"}
 
     filename_ext = ""
-    filter_glob: bpy.props.StringProperty(default="*.npz;*.frame;*.json;*.pt;*.pkl",
-                                          options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(
+        default="*.npz;*.frame;*.json;*.pt;*.pkl", options={"HIDDEN"}
+    )
     directory: bpy.props.StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
 
-    frame_start: bpy.props.IntProperty(name="First frame", min=0, default=0,
-                                       description="First sequence frame to import (0-based)")
-    frame_end: bpy.props.IntProperty(name="Last frame", min=-1, default=-1,
-                                     description="Last sequence frame to import; -1 = the end")
-    stride: bpy.props.IntProperty(name="Stride", min=1, default=1,
-                                  description="Import every n-th frame")
-    target_fps: bpy.props.FloatProperty(name="Scene fps", min=0.0, default=0.0,
-                                        description="Scene frame rate; 0 = the sequence's. "
-                                                    "Keys stay at their time")
-    n_expr: bpy.props.IntProperty(name="Expressions", min=0, max=400, default=100,
-                                  description="Expression components kept as shape keys "
-                                              "(fewer = lighter scene)")
-    use_camera: bpy.props.BoolProperty(name="Camera", default=True,
-                                       description="Create the tracked camera when there is one")
+    frame_start: bpy.props.IntProperty(
+        name="First frame", min=0, default=0, description="First sequence frame to import (0-based)"
+    )
+    frame_end: bpy.props.IntProperty(
+        name="Last frame",
+        min=-1,
+        default=-1,
+        description="Last sequence frame to import; -1 = the end",
+    )
+    stride: bpy.props.IntProperty(
+        name="Stride", min=1, default=1, description="Import every n-th frame"
+    )
+    target_fps: bpy.props.FloatProperty(
+        name="Scene fps",
+        min=0.0,
+        default=0.0,
+        description="Scene frame rate; 0 = the sequence's. Keys stay at their time",
+    )
+    n_expr: bpy.props.IntProperty(
+        name="Expressions",
+        min=0,
+        max=400,
+        default=100,
+        description="Expression components kept as shape keys (fewer = lighter scene)",
+    )
+    use_camera: bpy.props.BoolProperty(
+        name="Camera", default=True, description="Create the tracked camera when there is one"
+    )
     pose_correctives: bpy.props.EnumProperty(
         name="Pose correctives",
-        items=(("DRIVERS", "Driven by bones", "36 corrective shape keys driven by simple "
-                "expressions of the bones' rotations: they follow any later bone edit"),
-               ("KEYFRAMES", "Keyframed", "36 corrective shape keys keyframed from the tracked "
-                "rotations"),
-               ("NONE", "None", "No pose correctives (lighter, not exact)")),
-        default="DRIVERS")
+        items=(
+            (
+                "DRIVERS",
+                "Driven by bones",
+                "36 corrective shape keys driven by simple "
+                "expressions of the bones' rotations: they follow any later bone edit",
+            ),
+            (
+                "KEYFRAMES",
+                "Keyframed",
+                "36 corrective shape keys keyframed from the tracked rotations",
+            ),
+            ("NONE", "None", "No pose correctives (lighter, not exact)"),
+        ),
+        default="DRIVERS",
+    )
 
     def execute(self, context):
         path = Path(self.filepath)
@@ -57,8 +82,12 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", InputWarning)
-                obj = import_sequence(context, path, self.import_options(),
-                                      model_path=prefs.flame_model_path if prefs else "")
+                obj = import_sequence(
+                    context,
+                    path,
+                    self.import_options(),
+                    model_path=prefs.flame_model_path if prefs else "",
+                )
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -69,6 +98,12 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
     def import_options(self) -> dict:
-        return {"frame_start": self.frame_start, "frame_end": self.frame_end,
-                "stride": self.stride, "fps": self.target_fps or None, "n_expr": self.n_expr,
-                "camera": self.use_camera, "pose_correctives": self.pose_correctives}
+        return {
+            "frame_start": self.frame_start,
+            "frame_end": self.frame_end,
+            "stride": self.stride,
+            "fps": self.target_fps or None,
+            "n_expr": self.n_expr,
+            "camera": self.use_camera,
+            "pose_correctives": self.pose_correctives,
+        }

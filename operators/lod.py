@@ -15,10 +15,20 @@ class ARCHHEAD_OT_drive_lod(bpy.types.Operator):
     bl_label = "Drive LOD by Camera Distance"
     bl_options = {"REGISTER", "UNDO"}
 
-    near: bpy.props.FloatProperty(name="Near", min=0.0, default=0.5, subtype="DISTANCE",
-                                  description="At or closer than this: LOD 0 (most detail)")
-    far: bpy.props.FloatProperty(name="Far", min=0.0, default=3.0, subtype="DISTANCE",
-                                 description="At or beyond this: LOD 1 (least detail)")
+    near: bpy.props.FloatProperty(
+        name="Near",
+        min=0.0,
+        default=0.5,
+        subtype="DISTANCE",
+        description="At or closer than this: LOD 0 (most detail)",
+    )
+    far: bpy.props.FloatProperty(
+        name="Far",
+        min=0.0,
+        default=3.0,
+        subtype="DISTANCE",
+        description="At or beyond this: LOD 1 (least detail)",
+    )
 
     @classmethod
     def poll(cls, context):
@@ -26,8 +36,7 @@ class ARCHHEAD_OT_drive_lod(bpy.types.Operator):
 
     def execute(self, context):
         try:
-            drive_lod_by_distance(active_avatar(context), context.scene.camera, self.near,
-                                  self.far)
+            drive_lod_by_distance(active_avatar(context), context.scene.camera, self.near, self.far)
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -20,15 +20,23 @@ class ARCHHEAD_OT_export_ply(bpy.types.Operator, ExportHelper):
     filename_ext = ".ply"
     filter_glob: bpy.props.StringProperty(default="*.ply", options={"HIDDEN"})
     frames: bpy.props.EnumProperty(
-        name="Frames", default="CURRENT",
-        items=(("CURRENT", "Current frame", "One file"),
-               ("SCENE", "Scene range", "One file per frame, name_####.ply"),
-               ("CUSTOM", "Custom", "Frames like 1-20, 1-20:5 or 3,7")))
+        name="Frames",
+        default="CURRENT",
+        items=(
+            ("CURRENT", "Current frame", "One file"),
+            ("SCENE", "Scene range", "One file per frame, name_####.ply"),
+            ("CUSTOM", "Custom", "Frames like 1-20, 1-20:5 or 3,7"),
+        ),
+    )
     custom_frames: bpy.props.StringProperty(name="Frame list", default="1-10")
     space: bpy.props.EnumProperty(
-        name="Space", default="FLAME",
-        items=(("FLAME", "FLAME", "Metres, y up: the tracking's space (its cameras fit)"),
-               ("WORLD", "Blender world", "With the avatar object's transform, z up")))
+        name="Space",
+        default="FLAME",
+        items=(
+            ("FLAME", "FLAME", "Metres, y up: the tracking's space (its cameras fit)"),
+            ("WORLD", "Blender world", "With the avatar object's transform, z up"),
+        ),
+    )
 
     @classmethod
     def poll(cls, context):
@@ -42,8 +50,7 @@ class ARCHHEAD_OT_export_ply(bpy.types.Operator, ExportHelper):
                 frames = range(scene.frame_start, scene.frame_end + 1)
             elif self.frames == "CUSTOM":
                 frames = parse_frames(self.custom_frames)
-            written = export_ply(context, active_avatar(context), self.filepath, frames,
-                                 self.space)
+            written = export_ply(context, active_avatar(context), self.filepath, frames, self.space)
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -30,23 +30,27 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
     bl_idname = "archhead.train_avatar"
     bl_label = "Train Avatar"
 
-    frames_dir: bpy.props.StringProperty(name="Frames", subtype="DIR_PATH",
-                                         description="Folder of numbered video frames")
-    tracking: bpy.props.StringProperty(name="Tracking", subtype="FILE_PATH",
-                                       description="The frames' FLAME tracking (any format "
-                                                   "the importer reads)")
-    out_dir: bpy.props.StringProperty(name="Output", subtype="DIR_PATH",
-                                      description="Checkpoints, config and log go here")
+    frames_dir: bpy.props.StringProperty(
+        name="Frames", subtype="DIR_PATH", description="Folder of numbered video frames"
+    )
+    tracking: bpy.props.StringProperty(
+        name="Tracking",
+        subtype="FILE_PATH",
+        description="The frames' FLAME tracking (any format the importer reads)",
+    )
+    out_dir: bpy.props.StringProperty(
+        name="Output", subtype="DIR_PATH", description="Checkpoints, config and log go here"
+    )
     resolution: bpy.props.IntProperty(name="Resolution", min=32, default=PRESET["resolution"])
-    stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0,
-                                        default=PRESET["stage1_steps"])
-    stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0,
-                                        default=PRESET["stage2_steps"])
+    stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0, default=PRESET["stage1_steps"])
+    stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0, default=PRESET["stage2_steps"])
     resume: bpy.props.BoolProperty(name="Resume", description="Continue the run in Output")
     base_config: bpy.props.StringProperty(
-        name="Base config", subtype="FILE_PATH",
+        name="Base config",
+        subtype="FILE_PATH",
         description="Optional training config (JSON) in place of the command line's preset; "
-                    "the fields above override its values where you changed them")
+        "the fields above override its values where you changed them",
+    )
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self, width=420)
@@ -54,12 +58,18 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
     def execute(self, context):
         head = head_of(context.active_object)
         try:
-            settings = training_settings(self.overrides(), bpy.path.abspath(self.base_config)
-                                         if self.base_config else "")
-            self.run = start_training(context, bpy.path.abspath(self.frames_dir),
-                                      bpy.path.abspath(self.tracking),
-                                      bpy.path.abspath(self.out_dir), settings, self.resume,
-                                      head.name if head else None)
+            settings = training_settings(
+                self.overrides(), bpy.path.abspath(self.base_config) if self.base_config else ""
+            )
+            self.run = start_training(
+                context,
+                bpy.path.abspath(self.frames_dir),
+                bpy.path.abspath(self.tracking),
+                bpy.path.abspath(self.out_dir),
+                settings,
+                self.resume,
+                head.name if head else None,
+            )
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -74,16 +84,20 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
 
     def overrides(self) -> dict:
         """The fields the user (or a script) set; the rest come from the base config."""
-        return {name: getattr(self, name) for name in OVERRIDABLE
-                if self.properties.is_property_set(name)}
+        return {
+            name: getattr(self, name)
+            for name in OVERRIDABLE
+            if self.properties.is_property_set(name)
+        }
 
     def modal(self, context, event):
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         done = self.run.update()
         if context.workspace is not None:
-            context.workspace.status_text_set(None if done else f"ArchHead training: "
-                                              f"{self.run.summary()}")
+            context.workspace.status_text_set(
+                None if done else f"ArchHead training: {self.run.summary()}"
+            )
         for area in context.screen.areas if context.screen else ():
             if area.type == "VIEW_3D":
                 area.tag_redraw()

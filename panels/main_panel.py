@@ -32,8 +32,10 @@ class ARCHHEAD_PT_main(bpy.types.Panel):
             return
         box = layout.box()
         box.label(text=head.name, icon="OUTLINER_OB_ARMATURE")
-        box.label(text=f"Frames: {head.get('archhead_frames', '?')}  "
-                       f"fps: {head.get('archhead_source_fps', 0):g}")
+        box.label(
+            text=f"Frames: {head.get('archhead_frames', '?')}  "
+            f"fps: {head.get('archhead_source_fps', 0):g}"
+        )
         box.label(text=f"Format: {head.get('archhead_format', '?')}")
         box.label(text=f"Expressions: {head.get('archhead_n_expr', 0)}")
         _draw_avatar(layout, context, head)
@@ -62,8 +64,10 @@ def _draw_avatar(layout, context, head):
         box.operator("archhead.decode_avatar", icon="RENDER_ANIMATION")
     else:
         row = box.row()
-        row.progress(factor=state["done"] / max(state["total"], 1),
-                     text=f"Decoding {state['done']} / {state['total']}")
+        row.progress(
+            factor=state["done"] / max(state["total"], 1),
+            text=f"Decoding {state['done']} / {state['total']}",
+        )
         row.operator("archhead.cancel_decode", text="", icon="CANCEL")
     col = box.column(align=True)
     col.prop(settings, "view_dependent")

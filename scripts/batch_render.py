@@ -24,8 +24,11 @@ from archhead_blender import api
 
 def main(argv: list[str]) -> list[Path]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("blend", nargs="?", help=".blend to open (the bpy module; `blender -b "
-                                                 "FILE` has opened it already)")
+    parser.add_argument(
+        "blend",
+        nargs="?",
+        help=".blend to open (the bpy module; `blender -b FILE` has opened it already)",
+    )
     parser.add_argument("--frames", required=True, help="e.g. 1-20, 1-20:5 or 3,7,9")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--lod", type=float, default=None)
@@ -55,8 +58,14 @@ def main(argv: list[str]) -> list[Path]:
             scene.cycles.samples = args.samples
         else:
             scene.eevee.taa_render_samples = args.samples
-    written = api.render_frames(bpy.context, api.parse_frames(args.frames), args.out,
-                                  lod=args.lod, exact=args.exact, decode_only=args.decode_only)
+    written = api.render_frames(
+        bpy.context,
+        api.parse_frames(args.frames),
+        args.out,
+        lod=args.lod,
+        exact=args.exact,
+        decode_only=args.decode_only,
+    )
     for path in written:
         print(f"wrote {path}")
     return written

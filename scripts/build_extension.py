@@ -30,9 +30,13 @@ ADDON_FILES = ("__init__.py", "blender_manifest.toml", "operators", "panels")
 PACKAGES = ("archhead_addon", "archhead_blender")
 # Blender platform -> the wheel's platform tag (the kernel is a plain shared library loaded
 # with ctypes, so the wheel is py3-none-<platform>).
-WHEEL_TAGS = {"linux-x64": "manylinux_2_28_x86_64", "linux-arm64": "manylinux_2_28_aarch64",
-              "macos-arm64": "macosx_11_0_arm64", "macos-x64": "macosx_10_15_x86_64",
-              "windows-x64": "win_amd64"}
+WHEEL_TAGS = {
+    "linux-x64": "manylinux_2_28_x86_64",
+    "linux-arm64": "manylinux_2_28_aarch64",
+    "macos-arm64": "macosx_11_0_arm64",
+    "macos-x64": "macosx_10_15_x86_64",
+    "windows-x64": "win_amd64",
+}
 SKIP = ("__pycache__", ".pyc")
 
 
@@ -58,10 +62,13 @@ def build_wheel(out_dir: Path, blender_platform: str) -> Path:
         for source in sorted((REPO_ROOT / package).rglob("*")):
             if source.is_file() and not any(s in str(source) for s in SKIP):
                 files[source.relative_to(REPO_ROOT).as_posix()] = source.read_bytes()
-    files[f"{info}/METADATA"] = (f"Metadata-Version: 2.1\nName: archhead\nVersion: {version}\n"
-                                 "Requires-Python: >=3.11\n").encode()
-    files[f"{info}/WHEEL"] = (f"Wheel-Version: 1.0\nGenerator: archhead build_extension\n"
-                              f"Root-Is-Purelib: false\nTag: {tag}\n").encode()
+    files[f"{info}/METADATA"] = (
+        f"Metadata-Version: 2.1\nName: archhead\nVersion: {version}\nRequires-Python: >=3.11\n"
+    ).encode()
+    files[f"{info}/WHEEL"] = (
+        f"Wheel-Version: 1.0\nGenerator: archhead build_extension\n"
+        f"Root-Is-Purelib: false\nTag: {tag}\n"
+    ).encode()
     record = [f"{name},sha256={_digest(data)},{len(data)}" for name, data in files.items()]
     files[f"{info}/RECORD"] = ("\n".join([*record, f"{info}/RECORD,,"]) + "\n").encode()
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as whl:
@@ -81,8 +88,10 @@ def build(out_dir: Path, blender_platform: str | None = None) -> Path:
         raise SystemExit(f"{blender_platform} is not among the manifest's platforms")
     kernel = REPO_ROOT / "archhead_addon/splat/_build/libarchhead_splat.so"
     if blender_platform != this_platform() or not kernel.is_file():
-        raise SystemExit(f"build on {blender_platform} after `make setup`: the zip carries "
-                         "the kernel compiled there")
+        raise SystemExit(
+            f"build on {blender_platform} after `make setup`: the zip carries "
+            "the kernel compiled there"
+        )
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="archhead_stage_") as tmp:
@@ -97,12 +106,25 @@ def build(out_dir: Path, blender_platform: str | None = None) -> Path:
         (stage / "wheels").mkdir()
         wheel = build_wheel(stage / "wheels", blender_platform)
         text = (stage / "blender_manifest.toml").read_text()
-        text = text.replace("\n[permissions]", f'\nwheels = ["./wheels/{wheel.name}"]\n\n'
-                            "[permissions]", 1)
+        text = text.replace(
+            "\n[permissions]", f'\nwheels = ["./wheels/{wheel.name}"]\n\n[permissions]', 1
+        )
         (stage / "blender_manifest.toml").write_text(text)
-        subprocess.run([sys.executable, str(blender_ext_tool()), "build", "--source-dir",
-                        str(stage), "--output-dir", str(out_dir), "--split-platforms"],
-                       check=True, capture_output=True, text=True)
+        subprocess.run(
+            [
+                sys.executable,
+                str(blender_ext_tool()),
+                "build",
+                "--source-dir",
+                str(stage),
+                "--output-dir",
+                str(out_dir),
+                "--split-platforms",
+            ],
+            check=True,
+            capture_output=True,
+            text=True,
+        )
     name = f"archhead-{manifest()['version']}-{blender_platform.replace('-', '_')}.zip"
     return out_dir / name
 

@@ -86,8 +86,9 @@ def contact_sheet(context, runtime, frame: int, folder: Path, sheet: Path) -> li
 
     tiles, alpha = [], []
     for lod in SHEET_LODS:
-        path = api.render_frames(context, [frame], folder / f"lod_{lod:.2f}", lod=lod,
-                                   exact=True)[0]
+        path = api.render_frames(context, [frame], folder / f"lod_{lod:.2f}", lod=lod, exact=True)[
+            0
+        ]
         tiles.append(composite(path))
         alpha.append(np.asarray(Image.open(path).convert("RGBA"))[..., 3])
     rows, cols = np.nonzero(np.max(alpha, axis=0) > 8)
@@ -100,13 +101,14 @@ def contact_sheet(context, runtime, frame: int, folder: Path, sheet: Path) -> li
     out = Image.new("RGB", (width * len(crops), height + label), (255, 255, 255))
     # a grey rule between tiles, since the background is white too
     draw = ImageDraw.Draw(out)
-    levels = [(lod, runtime.resolution(lod), runtime.raster.table(runtime.resolution(lod)).count)
-              for lod in SHEET_LODS]
+    levels = [
+        (lod, runtime.resolution(lod), runtime.raster.table(runtime.resolution(lod)).count)
+        for lod in SHEET_LODS
+    ]
     for i, ((lod, size, count), crop) in enumerate(zip(levels, crops, strict=True)):
         out.paste(crop, (i * width, label))
         draw.line([(i * width, 0), (i * width, out.height)], fill=(200, 200, 200))
-        draw.text((i * width + 3, 1), f"LOD {lod:g}, S {size}\n{count:,} Gaussians",
-                  fill=(0, 0, 0))
+        draw.text((i * width + 3, 1), f"LOD {lod:g}, S {size}\n{count:,} Gaussians", fill=(0, 0, 0))
     sheet.parent.mkdir(parents=True, exist_ok=True)
     out.save(sheet)
     return levels
@@ -116,8 +118,9 @@ def write_gif(frames: list[Path], path: Path, fps: float) -> None:
     from PIL import Image
 
     images = [Image.fromarray(composite(p)) for p in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps),
-                   loop=0)
+    images[0].save(
+        path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0
+    )
 
 
 def run(args) -> dict:
@@ -127,15 +130,22 @@ def run(args) -> dict:
     steps = api.Steps("demo")
     with steps("built-in head"):
         model = api.load_model()
-        print(f"demo: built-in head {model.model_id}: {model.n_verts:,} vertices, "
-              f"{len(model.faces):,} faces, {model.n_shape} shape and {model.n_expr} "
-              "expression components")
+        print(
+            f"demo: built-in head {model.model_id}: {model.n_verts:,} vertices, "
+            f"{len(model.faces):,} faces, {model.n_shape} shape and {model.n_expr} "
+            "expression components"
+        )
     if args.checkpoint:
         checkpoint = Path(args.checkpoint).resolve()
     else:
         with steps("synthetic subject"):
-            api.render_subject(out / "subject", args.subject_frames, args.subject_size,
-                           args.subject_samples, verbose=False)
+            api.render_subject(
+                out / "subject",
+                args.subject_frames,
+                args.subject_size,
+                args.subject_samples,
+                verbose=False,
+            )
         with steps("training"):
             checkpoint = train_avatar(out / "subject", out / "train", args.train_config)
 
@@ -148,14 +158,15 @@ def run(args) -> dict:
         else:
             sequence = out / "demo.npz"
             api.write_canonical(api.demo_sequence(frames=args.frames), sequence)
-        result = bpy.ops.archhead.import_sequence(filepath=str(sequence),
-                                                  frame_end=args.frames - 1)
+        result = bpy.ops.archhead.import_sequence(filepath=str(sequence), frame_end=args.frames - 1)
         if result != {"FINISHED"}:
             raise SystemExit(f"import failed: {result}")
         render = scene.render  # the longer side to --size, the camera's aspect kept
         scale = args.size / max(render.resolution_x, render.resolution_y)
-        render.resolution_x, render.resolution_y = (round(scale * render.resolution_x),
-                                                    round(scale * render.resolution_y))
+        render.resolution_x, render.resolution_y = (
+            round(scale * render.resolution_x),
+            round(scale * render.resolution_y),
+        )
     head = bpy.data.objects[sequence.stem]
     with steps("load avatar"):
         context.view_layer.objects.active = head
@@ -166,19 +177,18 @@ def run(args) -> dict:
     frames = range(scene.frame_start, scene.frame_end + 1)
     sheet = Path(args.sheet).resolve() if args.sheet else out / "contact_sheet.png"
     with steps("contact sheet"):
-        levels = contact_sheet(context, runtime, frames.start,
-                               out / "sheet", sheet)
+        levels = contact_sheet(context, runtime, frames.start, out / "sheet", sheet)
 
     target = np.array(head.matrix_world) @ np.append(
-        np.mean([np.array(v) for v in head.bound_box], axis=0), 1)
+        np.mean([np.array(v) for v in head.bound_box], axis=0), 1
+    )
     dolly = dolly_camera(scene, scene.camera, target[:3], frames)
     api.drive_lod_by_distance(avatar, dolly, NEAR, FAR)
     avatar.archhead_avatar.decode_frames = "ALL"
     with steps("decode"):
         decoded = api.decode_frames(context, avatar)
     with steps("render clip"):
-        clip = api.render_frames(
-            context, list(frames), out / "clip", exact=True)
+        clip = api.render_frames(context, list(frames), out / "clip", exact=True)
         write_gif(clip, out / "clip.gif", scene.render.fps)
     driven = {}
     for frame in (frames.start, frames.stop - 1):
@@ -186,13 +196,19 @@ def run(args) -> dict:
         driven[frame] = api.avatar_lod(avatar, context.evaluated_depsgraph_get())
     blend = out / "demo.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    summary = {"blend": str(blend), "contact_sheet": str(sheet), "clip": str(out / "clip"),
-               "gif": str(out / "clip.gif"), "checkpoint": str(checkpoint),
-               "frames": len(clip), "decoded": decoded, "sheet_levels": levels,
-               "driven_lod": {"first frame": driven[frames.start],
-                              "last frame": driven[frames.stop - 1]},
-               "seconds": steps.seconds,
-               "total_seconds": sum(steps.seconds.values())}
+    summary = {
+        "blend": str(blend),
+        "contact_sheet": str(sheet),
+        "clip": str(out / "clip"),
+        "gif": str(out / "clip.gif"),
+        "checkpoint": str(checkpoint),
+        "frames": len(clip),
+        "decoded": decoded,
+        "sheet_levels": levels,
+        "driven_lod": {"first frame": driven[frames.start], "last frame": driven[frames.stop - 1]},
+        "seconds": steps.seconds,
+        "total_seconds": sum(steps.seconds.values()),
+    }
     (out / "demo_summary.json").write_text(json.dumps(summary, indent=2))
     print(f"\ndemo done in {summary['total_seconds']:.0f} s")
     for name in ("blend", "contact_sheet", "clip", "gif", "checkpoint"):
@@ -204,18 +220,21 @@ def run(args) -> dict:
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    parser.add_argument("--checkpoint", help="a trained avatar of the built-in model "
-                        "(default: train a short one)")
-    parser.add_argument("--sequence", help="tracked sequence to import (default: the built-in "
-                        "talking head)")
+    parser.add_argument(
+        "--checkpoint", help="a trained avatar of the built-in model (default: train a short one)"
+    )
+    parser.add_argument(
+        "--sequence", help="tracked sequence to import (default: the built-in talking head)"
+    )
     parser.add_argument("--frames", type=int, default=60, help="clip length")
     parser.add_argument("--size", type=int, default=256, help="clip and sheet size in pixels")
     parser.add_argument("--sheet", help="contact sheet path (default: OUT/contact_sheet.png)")
     parser.add_argument("--subject-frames", type=int, default=40)
     parser.add_argument("--subject-size", type=int, default=96)
     parser.add_argument("--subject-samples", type=int, default=8)
-    parser.add_argument("--train-config", default="demo",
-                        help="training config file or preset (default: demo)")
+    parser.add_argument(
+        "--train-config", default="demo", help="training config file or preset (default: demo)"
+    )
     return parser.parse_args(argv)
 
 

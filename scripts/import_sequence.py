@@ -37,16 +37,23 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--fps", type=float, default=0.0)
     parser.add_argument("--expressions", type=int, default=100)
     parser.add_argument("--no-camera", action="store_true")
-    parser.add_argument("--correctives", choices=("DRIVERS", "KEYFRAMES", "NONE"),
-                        default="DRIVERS")
+    parser.add_argument(
+        "--correctives", choices=("DRIVERS", "KEYFRAMES", "NONE"), default="DRIVERS"
+    )
     args = parser.parse_args(argv)
     api.enable_addon()
     if args.sequence == "demo":
         args.sequence = _write_demo_sequence()
     result = bpy.ops.archhead.import_sequence(
-        filepath=str(Path(args.sequence).resolve()), frame_start=args.first,
-        frame_end=args.last, stride=args.stride, target_fps=args.fps, n_expr=args.expressions,
-        use_camera=not args.no_camera, pose_correctives=args.correctives)
+        filepath=str(Path(args.sequence).resolve()),
+        frame_start=args.first,
+        frame_end=args.last,
+        stride=args.stride,
+        target_fps=args.fps,
+        n_expr=args.expressions,
+        use_camera=not args.no_camera,
+        pose_correctives=args.correctives,
+    )
     if result != {"FINISHED"}:
         raise SystemExit(f"import failed: {result}")
     bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.out).resolve()))

@@ -21,16 +21,21 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--size", type=int, default=256, help="square image size in pixels")
-    parser.add_argument("--samples", type=int, default=api.SUBJECT_SAMPLES,
-                        help="Cycles samples per pixel (denoised above 4)")
+    parser.add_argument(
+        "--samples",
+        type=int,
+        default=api.SUBJECT_SAMPLES,
+        help="Cycles samples per pixel (denoised above 4)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="trajectory seed")
     parser.add_argument("--fps", type=float, default=25.0)
     parser.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
     args = parser.parse_args(argv)
     if args.frames < 1 or args.size < 8 or args.samples < 1:
         parser.error("--frames and --samples must be positive and --size at least 8")
-    api.render_subject(args.out, args.frames, args.size, args.samples, args.seed, args.fps,
-                   args.threads)
+    api.render_subject(
+        args.out, args.frames, args.size, args.samples, args.seed, args.fps, args.threads
+    )
 
 
 if __name__ == "__main__":

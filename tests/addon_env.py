@@ -30,9 +30,11 @@ def installed_addon():
         repo_dir = work / "repo"
         repo_dir.mkdir()
         bpy.context.preferences.extensions.repos.new(
-            name=REPO_MODULE, module=REPO_MODULE, custom_directory=str(repo_dir), source="USER")
-        bpy.ops.extensions.package_install_files(filepath=str(zip_path), repo=REPO_MODULE,
-                                                 enable_on_install=True)
+            name=REPO_MODULE, module=REPO_MODULE, custom_directory=str(repo_dir), source="USER"
+        )
+        bpy.ops.extensions.package_install_files(
+            filepath=str(zip_path), repo=REPO_MODULE, enable_on_install=True
+        )
         _state["module"] = importlib.import_module(ADDON_MODULE)
         _state["zip"] = zip_path
     return _state["module"]

@@ -8,8 +8,11 @@ pytestmark = pytest.mark.blender
 
 
 def _handler_counts():
-    return {name: len(getattr(bpy.app.handlers, name)) for name in dir(bpy.app.handlers)
-            if not name.startswith("_") and isinstance(getattr(bpy.app.handlers, name), list)}
+    return {
+        name: len(getattr(bpy.app.handlers, name))
+        for name in dir(bpy.app.handlers)
+        if not name.startswith("_") and isinstance(getattr(bpy.app.handlers, name), list)
+    }
 
 
 def test_register_unregister_cycles():
@@ -52,8 +55,13 @@ def test_extension_zip_holds_the_addon_alone(extension_zip, repo_root):
         (wheel,) = [n for n in names if n.startswith("wheels/")]
         assert manifest["wheels"] == [f"./{wheel}"]
     assert manifest["platforms"] == ["linux-x64"]
-    assert {n.split("/")[0] for n in names} == {"__init__.py", "blender_manifest.toml",
-                                                 "operators", "panels", "wheels"}
+    assert {n.split("/")[0] for n in names} == {
+        "__init__.py",
+        "blender_manifest.toml",
+        "operators",
+        "panels",
+        "wheels",
+    }
     assert not [n for n in names if "__pycache__" in n or n.endswith((".so", ".pyc"))]
     project = tomllib.loads((repo_root / "pyproject.toml").read_text())
     assert project["project"]["version"] == manifest["version"]  # the version in one place
@@ -124,9 +132,14 @@ def test_addon_loads_without_the_compiled_kernel(extension_zip, tmp_path):
         whl.extractall(site, [n for n in whl.namelist() if "/_build/" not in n])
     (tmp_path / "repo").mkdir()
     env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "PYTHONPATH": str(site)}
-    done = subprocess.run([sys.executable, "-c", INSTALL_AND_REPORT, str(extension_zip),
-                           str(tmp_path / "repo")], env=env, cwd=tmp_path, capture_output=True,
-                          text=True, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-c", INSTALL_AND_REPORT, str(extension_zip), str(tmp_path / "repo")],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     assert f"core: {site}" in done.stdout
     assert "registered: True True" in done.stdout

@@ -7,8 +7,7 @@ import re
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = ("archhead_addon", "archhead_blender", "operators", "panels", "scripts",
-           "benchmarks")
+FOLDERS = ("archhead_addon", "archhead_blender", "operators", "panels", "scripts", "benchmarks")
 BLENDER_SIDE = ("archhead_blender", "operators", "panels")
 
 
@@ -39,8 +38,13 @@ def _graph() -> dict[str, set[str]]:
 
 def test_no_import_up_or_sideways():
     graph = _graph()
-    assert not graph["archhead_addon"] & {"archhead_blender", "operators", "panels", "scripts",
-                                          "benchmarks"}
+    assert not graph["archhead_addon"] & {
+        "archhead_blender",
+        "operators",
+        "panels",
+        "scripts",
+        "benchmarks",
+    }
     assert "panels" not in graph["operators"]
     assert not graph["archhead_blender"] & {"operators", "panels", "scripts", "benchmarks"}
     assert not graph["panels"] & {"operators", "scripts", "benchmarks"}
@@ -50,8 +54,9 @@ def test_no_cycle_between_top_level_folders():
     graph = _graph()
 
     def reaches(start, goal, seen=()):
-        return any(n == goal or (n not in seen and reaches(n, goal, (*seen, n)))
-                   for n in graph[start])
+        return any(
+            n == goal or (n not in seen and reaches(n, goal, (*seen, n))) for n in graph[start]
+        )
 
     assert [f for f in FOLDERS if reaches(f, f)] == []
 

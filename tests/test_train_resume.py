@@ -23,13 +23,23 @@ def subject(tmp_path_factory):
 
 
 def command(subject, out, *extra):
-    return [sys.executable, "-m", "archhead_addon.train", "--data", str(subject), "--out",
-            str(out), "--progress-json", *extra]
+    return [
+        sys.executable,
+        "-m",
+        "archhead_addon.train",
+        "--data",
+        str(subject),
+        "--out",
+        str(out),
+        "--progress-json",
+        *extra,
+    ]
 
 
 def start(cmd):
-    return subprocess.Popen(cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    return subprocess.Popen(
+        cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
 
 
 def events_until(proc, done) -> list[dict]:
@@ -43,8 +53,9 @@ def events_until(proc, done) -> list[dict]:
 
 
 def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path):
-    config = write_config(tmp_path / "c.json", stage1_steps=TOTAL - 10, stage2_steps=10,
-                          checkpoint_every=3)
+    config = write_config(
+        tmp_path / "c.json", stage1_steps=TOTAL - 10, stage2_steps=10, checkpoint_every=3
+    )
     out = tmp_path / "run"
     proc = start(command(subject, out, "--config", str(config)))
     try:
@@ -58,8 +69,13 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path
     assert state["step"] % 3 == 0 and killed_at - 3 <= state["step"] <= killed_at
     AvatarRuntime.load(out / "avatar.npz").decode(0.0)  # the checkpoint is whole
 
-    done = subprocess.run(command(subject, out, "--resume"), cwd=REPO_ROOT,
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        command(subject, out, "--resume"),
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     events = [json.loads(line) for line in done.stdout.splitlines()]
     assert events[0]["event"] == "start" and events[0]["step"] == state["step"]
@@ -70,8 +86,9 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path
 
 
 def test_ctrl_c_saves_and_exits(subject, tmp_path):
-    config = write_config(tmp_path / "c.json", stage1_steps=TOTAL, stage2_steps=0,
-                          checkpoint_every=1000)
+    config = write_config(
+        tmp_path / "c.json", stage1_steps=TOTAL, stage2_steps=0, checkpoint_every=1000
+    )
     out = tmp_path / "run"
     proc = start(command(subject, out, "--config", str(config)))
     try:
@@ -85,7 +102,10 @@ def test_ctrl_c_saves_and_exits(subject, tmp_path):
     assert "Traceback" not in err
     last = events[-1]
     assert last["event"] == "interrupted" and 2 <= last["step"] < TOTAL
-    assert events[-2] == {"event": "checkpoint", "step": last["step"],
-                          "avatar": str(out / "avatar.npz")}
+    assert events[-2] == {
+        "event": "checkpoint",
+        "step": last["step"],
+        "avatar": str(out / "avatar.npz"),
+    }
     assert load_state(out / STATE_FILE)["step"] == last["step"]
     AvatarRuntime.load(out / "avatar.npz").decode(1.0)

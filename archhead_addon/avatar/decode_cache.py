@@ -41,9 +41,13 @@ class SplatFrame:
     @classmethod
     def from_gaussians(cls, g: Gaussians) -> SplatFrame:
         keep = np.asarray(g.opacity_logits) >= _LOGIT_MIN
-        return cls(*(np.ascontiguousarray(np.asarray(a)[keep], np.float32)
-                     for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)),
-                   resolution=int(g.resolution))
+        return cls(
+            *(
+                np.ascontiguousarray(np.asarray(a)[keep], np.float32)
+                for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)
+            ),
+            resolution=int(g.resolution),
+        )
 
     def __len__(self) -> int:
         return len(self.means)
@@ -60,8 +64,10 @@ class SplatFrame:
     def concatenate(cls, frames: list[SplatFrame]) -> SplatFrame:
         """Several frames as one (a scene's avatars in one space); resolution of the first."""
         arrays = [f.arrays() for f in frames]
-        return cls(**{name: np.concatenate([a[name] for a in arrays]) for name in arrays[0]},
-                   resolution=frames[0].resolution)
+        return cls(
+            **{name: np.concatenate([a[name] for a in arrays]) for name in arrays[0]},
+            resolution=frames[0].resolution,
+        )
 
 
 def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
@@ -128,12 +134,13 @@ class DiskCache:
             return None
         try:
             with np.load(path, allow_pickle=False) as z:
-                arrays = {name: z[name] for name in
-                          ("means", "log_scales", "quats", "opacity_logits", "sh")}
+                arrays = {
+                    name: z[name]
+                    for name in ("means", "log_scales", "quats", "opacity_logits", "sh")
+                }
                 return SplatFrame(**arrays, resolution=int(z["resolution"]))
         except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError):
             return None
 
     def put(self, key: str, frame: SplatFrame) -> None:
-        save_npz_atomic(self.path(key), **frame.arrays(),
-                        resolution=np.int64(frame.resolution))
+        save_npz_atomic(self.path(key), **frame.arrays(), resolution=np.int64(frame.resolution))

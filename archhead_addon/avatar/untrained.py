@@ -1,6 +1,6 @@
 """Write an untrained avatar of the built-in model (benchmarks and tests of decode cost):
 
-    python -m archhead_addon.avatar.untrained OUT.npz [--seed 0]
+python -m archhead_addon.avatar.untrained OUT.npz [--seed 0]
 """
 
 from __future__ import annotations

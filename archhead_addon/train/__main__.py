@@ -34,17 +34,27 @@ INTERRUPTED = 130  # the shell's status for a run stopped by SIGINT
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m archhead_addon.train",
-                                description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m archhead_addon.train", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("--data", type=Path, required=True, help="training data folder")
     p.add_argument("--out", type=Path, required=True, help="output folder of the run")
-    p.add_argument("--config", default=DEFAULT_PRESET, help=f"config file, or a preset: "
-                   f"{', '.join(PRESETS)} (default: {DEFAULT_PRESET}); ignored with --resume, "
-                   "which uses the run's own")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from "
-                   "its last checkpoint")
-    p.add_argument("--progress-json", action="store_true", help="one JSON object per line on "
-                   "stdout (events: start, step, checkpoint, done, interrupted, error)")
+    p.add_argument(
+        "--config",
+        default=DEFAULT_PRESET,
+        help=f"config file, or a preset: "
+        f"{', '.join(PRESETS)} (default: {DEFAULT_PRESET}); ignored with --resume, "
+        "which uses the run's own",
+    )
+    p.add_argument(
+        "--resume", action="store_true", help="continue the run in --out from its last checkpoint"
+    )
+    p.add_argument(
+        "--progress-json",
+        action="store_true",
+        help="one JSON object per line on "
+        "stdout (events: start, step, checkpoint, done, interrupted, error)",
+    )
     p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
     return p.parse_args(argv)
 
@@ -60,6 +70,7 @@ class StopFlag:
 
     def install(self) -> dict:
         """Install the handlers; returns the previous ones (for `restore`)."""
+
         def handler(signum, frame):
             if self.set and signum == signal.SIGINT:
                 raise KeyboardInterrupt
@@ -85,8 +96,11 @@ def setup(args, progress: Progress) -> Trainer:
     if args.resume and not state_path.is_file():
         raise InputError(args.out, None, f"nothing to resume: no {state_path.name} here")
     if not args.resume and state_path.exists():
-        raise InputError(args.out, None, "holds a training run: pass --resume to continue "
-                         "it, or choose another --out")
+        raise InputError(
+            args.out,
+            None,
+            "holds a training run: pass --resume to continue it, or choose another --out",
+        )
     state = loop.load_state(state_path) if args.resume else None
     config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
     if config.threads:
@@ -96,16 +110,25 @@ def setup(args, progress: Progress) -> Trainer:
     dataset = FrameDataset(args.data, config.resolution, model, split="train")
     frames = loop.frames_on_device(dataset, device)
     if state is not None:
-        trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background,
-                                      device)
+        trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background, device)
     else:
-        trainer = loop.Trainer.create(config, frames, model, dataset.sequence.shape[0],
-                                      args.out, dataset.background, device)
-    progress.event(START, step=trainer.step, total=config.total_steps, device=str(device),
-                   renderer=trainer.backend, frames=len(frames), resolution=list(dataset.size))
-    progress.message(f"training on {len(frames)} frames of {dataset.size[1]}x"
-                     f"{dataset.size[0]} px, {device}, renderer {trainer.backend}"
-                     + (f", resumed at step {trainer.step}" if state is not None else ""))
+        trainer = loop.Trainer.create(
+            config, frames, model, dataset.sequence.shape[0], args.out, dataset.background, device
+        )
+    progress.event(
+        START,
+        step=trainer.step,
+        total=config.total_steps,
+        device=str(device),
+        renderer=trainer.backend,
+        frames=len(frames),
+        resolution=list(dataset.size),
+    )
+    progress.message(
+        f"training on {len(frames)} frames of {dataset.size[1]}x"
+        f"{dataset.size[0]} px, {device}, renderer {trainer.backend}"
+        + (f", resumed at step {trainer.step}" if state is not None else "")
+    )
     return trainer
 
 
@@ -115,8 +138,13 @@ def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
     kind = DONE if finished else INTERRUPTED_EVENT
     avatar = RunFolder(trainer.out_dir).avatar
     total = trainer.config.total_steps
-    progress.event(kind, step=trainer.step, total=total, avatar=str(avatar),
-                   elapsed_seconds=round(trainer.elapsed, 1))
+    progress.event(
+        kind,
+        step=trainer.step,
+        total=total,
+        avatar=str(avatar),
+        elapsed_seconds=round(trainer.elapsed, 1),
+    )
     progress.message(f"{kind} at step {trainer.step}/{total}; avatar {avatar}")
     return 0 if finished else INTERRUPTED
 

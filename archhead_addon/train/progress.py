@@ -19,7 +19,13 @@ import time
 from dataclasses import dataclass, field
 
 START, STEP, CHECKPOINT, DONE, INTERRUPTED, ERROR = (
-    "start", "step", "checkpoint", "done", "interrupted", "error")
+    "start",
+    "step",
+    "checkpoint",
+    "done",
+    "interrupted",
+    "error",
+)
 BAR_WIDTH = 24
 LINES_WITHOUT_TTY = 100  # a non-terminal stderr (a log file) gets about this many lines a run
 
@@ -36,12 +42,17 @@ class StepReport:
     elapsed_seconds: float
 
     def to_json(self) -> dict:
-        return {"event": STEP, "stage": self.stage, "step": self.step, "total": self.total,
-                "loss": {k: round(v, 6) for k, v in self.loss.items()},
-                "lods": [round(lod, 4) for lod in self.lods],
-                "seconds_per_step": round(self.seconds_per_step, 4),
-                "eta_seconds": round(self.eta_seconds, 1),
-                "elapsed_seconds": round(self.elapsed_seconds, 1)}
+        return {
+            "event": STEP,
+            "stage": self.stage,
+            "step": self.step,
+            "total": self.total,
+            "loss": {k: round(v, 6) for k, v in self.loss.items()},
+            "lods": [round(lod, 4) for lod in self.lods],
+            "seconds_per_step": round(self.seconds_per_step, 4),
+            "eta_seconds": round(self.eta_seconds, 1),
+            "elapsed_seconds": round(self.elapsed_seconds, 1),
+        }
 
 
 def format_seconds(seconds: float) -> str:
@@ -89,9 +100,11 @@ class Progress:
     @staticmethod
     def bar(r: StepReport) -> str:
         filled = BAR_WIDTH * r.step // r.total
-        return (f"stage {r.stage} [{'#' * filled}{'.' * (BAR_WIDTH - filled)}] "
-                f"{r.step}/{r.total}  rgb {r.loss['rgb']:.5f}  {r.seconds_per_step:.2f} s/step"
-                f"  ETA {format_seconds(r.eta_seconds)}")
+        return (
+            f"stage {r.stage} [{'#' * filled}{'.' * (BAR_WIDTH - filled)}] "
+            f"{r.step}/{r.total}  rgb {r.loss['rgb']:.5f}  {r.seconds_per_step:.2f} s/step"
+            f"  ETA {format_seconds(r.eta_seconds)}"
+        )
 
 
 @dataclass

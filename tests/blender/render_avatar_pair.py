@@ -63,8 +63,9 @@ def main(argv) -> None:
     torch.manual_seed(0)
     save_avatar(folder / "avatar.npz", ArchHeadAvatar.create(load_model()))
     bpy.ops.wm.read_homefile(use_empty=True)
-    write_canonical(demo_sequence(frames=FRAME + 1, image_size=(args.size, args.size)),
-                    folder / "demo.npz")
+    write_canonical(
+        demo_sequence(frames=FRAME + 1, image_size=(args.size, args.size)), folder / "demo.npz"
+    )
     bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
     bpy.context.view_layer.objects.active = bpy.data.objects["demo"]
     bpy.ops.archhead.load_avatar(filepath=str(folder / "avatar.npz"))
@@ -83,20 +84,25 @@ def main(argv) -> None:
     rows = []
     for lod in (0.0, 1.0):
         start = time.perf_counter()
-        (exact_path,) = batch.render_frames(bpy.context, [FRAME], folder / f"exact_{lod:g}",
-                                            lod=lod, exact=True)
+        (exact_path,) = batch.render_frames(
+            bpy.context, [FRAME], folder / f"exact_{lod:g}", lod=lod, exact=True
+        )
         exact = _over_grey(load_rgba(exact_path))
         print(f"LOD {lod:g}: exact splat {time.perf_counter() - start:.1f} s")
         for engine in engines:
             r.engine = engine
             start = time.perf_counter()
-            (path,) = batch.render_frames(bpy.context, [FRAME], folder / f"{engine}_{lod:g}",
-                                          lod=lod)
+            (path,) = batch.render_frames(
+                bpy.context, [FRAME], folder / f"{engine}_{lod:g}", lod=lod
+            )
             image = _over_grey(load_rgba(path))
-            print(f"LOD {lod:g}: {engine} {time.perf_counter() - start:.1f} s, "
-                  f"PSNR against the exact splat {psnr(image, exact):.2f} dB")
-            rows.append(np.concatenate([image, exact, np.clip(4 * np.abs(image - exact), 0, 1)],
-                                       axis=1))
+            print(
+                f"LOD {lod:g}: {engine} {time.perf_counter() - start:.1f} s, "
+                f"PSNR against the exact splat {psnr(image, exact):.2f} dB"
+            )
+            rows.append(
+                np.concatenate([image, exact, np.clip(4 * np.abs(image - exact), 0, 1)], axis=1)
+            )
     picture = np.concatenate(rows, axis=0)
     name = "avatar_cycles_vs_splat.png" if len(engines) == 1 else "avatar_engines_vs_splat.png"
     write_bytes_atomic(args.out / name, encode_png(np.round(picture * 255).astype(np.uint8)))
@@ -104,4 +110,4 @@ def main(argv) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
+    main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:])

@@ -51,8 +51,7 @@ def add_camera(target_flame=(0.0, -0.004, 0.02)):
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     cam.data.lens = 100
     distance = 0.88
-    cam.location = flame_point([distance * np.sin(CAMERA_YAW), 0.0,
-                                distance * np.cos(CAMERA_YAW)])
+    cam.location = flame_point([distance * np.sin(CAMERA_YAW), 0.0, distance * np.cos(CAMERA_YAW)])
     look_at(cam, flame_point(target_flame))
     scene.collection.objects.link(cam)
     scene.camera = cam
