@@ -2,7 +2,7 @@
 with Blender's engine (EEVEE or Cycles, through the handlers) or "exact splat" (the
 Gaussians the avatars show, rendered by the splat kernel from the scene camera).
 
-`operators/script_batch.py` is the command line around `render_frames`.
+`scripts/batch_render.py` is the command line around `render_frames`.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ the same Gaussians from the same camera (the pictures and PSNR in docs/blender_a
 The avatar is an untrained one of the built-in model (its initialisation, seed 0), on the demo
 head at frame 12, view-dependent colour on, at LOD 0 and LOD 1. Each row: Blender's render,
 the exact splat render, and their absolute difference x4, all over the same grey. Both
-renders go through the batch path (operators/batch_render.py) that the command line uses.
+renders go through the batch path (archhead_blender/batch_render.py) that the command line uses.
 """
 
 from __future__ import annotations
