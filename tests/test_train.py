@@ -15,7 +15,8 @@ from archhead_addon.flame.model import load_model
 from archhead_addon.train.__main__ import main
 from archhead_addon.train.config import TrainConfig
 from archhead_addon.train.dataset import FrameDataset
-from archhead_addon.train.loop import STATE_FILE, Trainer, frames_on_device, load_state
+from archhead_addon.train.loop import Trainer, frames_on_device, load_state
+from archhead_addon.train.run_folder import RunFolder
 
 pytestmark = pytest.mark.slow
 
@@ -77,7 +78,7 @@ def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(subject, dataset, t
     assert all(e["lods"] == [0.0, 1.0] for e in steps[24:])  # stage 2, two levels: the ends
     assert ("lpips" in steps[0]["loss"]) and ("lpips" not in steps[1]["loss"])  # every 2nd
 
-    runtime = AvatarRuntime.load(out / "avatar.npz")
+    runtime = AvatarRuntime.load(RunFolder(out).avatar)
     item = dataset[0]
     frames = {
         lod: render_frame(
@@ -143,7 +144,7 @@ def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
     for _ in range(4):
         first.train_step()
     first.save()
-    state = load_state(tmp_path / "b" / STATE_FILE)
+    state = load_state(RunFolder(tmp_path / "b").state)
     assert state["step"] == 4
     frames = frames_on_device(dataset, torch.device("cpu"))
     resumed = Trainer.resume(
@@ -196,8 +197,8 @@ def test_cli_refuses_to_overwrite_or_resume_nothing(subject, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2
     assert "nothing to resume" in capsys.readouterr().err
-    (out / STATE_FILE).parent.mkdir(parents=True)
-    (out / STATE_FILE).write_bytes(b"")
+    RunFolder(out).state.parent.mkdir(parents=True)
+    RunFolder(out).state.write_bytes(b"")
     assert main(["--data", str(subject), "--out", str(out), "--config", config]) == 2
     assert "--resume" in capsys.readouterr().err
     assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2

@@ -10,9 +10,10 @@ from training_subject import tiny_subject, write_config
 from archhead_addon.flame.model import load_model
 from archhead_addon.train.__main__ import main as train_main
 from archhead_addon.train.dataset import FrameDataset
-from archhead_addon.train.loop import STATE_FILE, Trainer, frames_on_device, load_state
+from archhead_addon.train.loop import Trainer, frames_on_device, load_state
 from archhead_addon.train.probe import main as probe_main
 from archhead_addon.train.probe import widen
+from archhead_addon.train.run_folder import RunFolder
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +34,7 @@ def run(subject, tmp_path_factory):
 
 def test_widened_heads_decode_the_same_gaussians(subject, run):
     model = load_model()
-    state = load_state(run / STATE_FILE)
+    state = load_state(RunFolder(run).state)
     dataset = FrameDataset(subject, 48, model, split="train")
     frames = frames_on_device(dataset, torch.device("cpu"))
     narrow = Trainer.resume(
@@ -84,7 +85,7 @@ def test_probe_trains_its_levels_and_leaves_the_run_alone(subject, run, capsys):
 def test_probe_names_bad_input(subject, run, tmp_path, capsys):
     assert probe_main(["--run", str(tmp_path), "--data", str(subject), "--steps", "0"]) == 2
     err = capsys.readouterr().err
-    assert str(tmp_path) in err and STATE_FILE in err
+    assert str(tmp_path) in err and RunFolder(tmp_path).state.name in err
     assert (
         probe_main(["--run", str(run), "--data", str(subject), "--steps", "0", "--frame", "99"])
         == 2

@@ -10,7 +10,8 @@ import pytest
 from training_subject import REPO_ROOT, tiny_subject, write_config
 
 from archhead_addon.avatar.runtime import AvatarRuntime
-from archhead_addon.train.loop import STATE_FILE, load_state
+from archhead_addon.train.loop import load_state
+from archhead_addon.train.run_folder import RunFolder
 
 pytestmark = pytest.mark.slow
 
@@ -65,9 +66,9 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path
         proc.kill()  # SIGKILL, wherever it is: mid-step or writing the next checkpoint
         proc.wait()
     killed_at = seen[-1]["step"]
-    state = load_state(out / STATE_FILE)
+    state = load_state(RunFolder(out).state)
     assert state["step"] % 3 == 0 and killed_at - 3 <= state["step"] <= killed_at
-    AvatarRuntime.load(out / "avatar.npz").decode(0.0)  # the checkpoint is whole
+    AvatarRuntime.load(RunFolder(out).avatar).decode(0.0)  # the checkpoint is whole
 
     done = subprocess.run(
         command(subject, out, "--resume"),
@@ -81,7 +82,7 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path
     assert events[0]["event"] == "start" and events[0]["step"] == state["step"]
     steps = [e["step"] for e in events if e["event"] == "step"]
     assert steps == list(range(state["step"] + 1, TOTAL + 1))
-    assert events[-1]["event"] == "done" and load_state(out / STATE_FILE)["step"] == TOTAL
+    assert events[-1]["event"] == "done" and load_state(RunFolder(out).state)["step"] == TOTAL
     assert "resumed at step" in done.stderr
 
 
@@ -105,7 +106,7 @@ def test_ctrl_c_saves_and_exits(subject, tmp_path):
     assert events[-2] == {
         "event": "checkpoint",
         "step": last["step"],
-        "avatar": str(out / "avatar.npz"),
+        "avatar": str(RunFolder(out).avatar),
     }
-    assert load_state(out / STATE_FILE)["step"] == last["step"]
-    AvatarRuntime.load(out / "avatar.npz").decode(1.0)
+    assert load_state(RunFolder(out).state)["step"] == last["step"]
+    AvatarRuntime.load(RunFolder(out).avatar).decode(1.0)
