@@ -1,11 +1,11 @@
-# The two commands of the README: `make setup` installs everything into .venv,
-# `make test` lints and runs the whole suite. `make demo` runs the demo
-# (operators/script_demo.py: subject, short training, import, LOD driver, clip, .blend).
+# The README's commands: `make setup` installs everything into .venv, `make test` lints and
+# runs the whole suite, `make demo` runs the demo (scripts/demo.py), `make extension` builds
+# the installable zip for this platform into dist/ (scripts/build_extension.py).
 PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup test demo
+.PHONY: setup test demo extension format
 setup:
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip
@@ -16,7 +16,14 @@ setup:
 
 test:
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/python -m pytest
 
 demo:
 	$(BIN)/python -m archhead_addon demo --out out/demo
+
+extension:
+	$(BIN)/python scripts/build_extension.py --out dist
+
+format:
+	$(BIN)/ruff format .

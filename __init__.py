@@ -1,22 +1,28 @@
-"""ArchHead Blender extension: registration only; the work lives in operators/ and panels/.
+"""ArchHead Blender extension: registration only. The operator classes live in operators/,
+the UI in panels/, everything else Blender-side in the `archhead_blender` package and the
+core in `archhead_addon` (both installed from the extension's wheel, so every process
+imports them under these names).
 
-Blender-side code uses numpy and this package's `archhead_addon` core, never torch.
 Submodules are imported in register(), so importing this package alone (test collectors,
 tooling) has no side effects and needs no Blender.
 """
 
 
 def register():
+    import archhead_blender
+
     from . import operators, panels
 
-    panels.register_preferences()
+    archhead_blender.register(__package__)
     operators.register()
     panels.register()
 
 
 def unregister():
+    import archhead_blender
+
     from . import operators, panels
 
     panels.unregister()
     operators.unregister()
-    panels.unregister_preferences()
+    archhead_blender.unregister()

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
-from pathlib import Path
 
 from .io.cli import run_command
 from .sequences import FORMAT_NAMES, read_sequence, write_canonical
@@ -19,16 +18,25 @@ from .track.cli import add_subject, add_track
 
 
 def _add_convert(commands) -> None:
-    p = commands.add_parser("convert", help="convert a tracked sequence to ArchHead's .npz",
-                            description="Read a tracked FLAME sequence and write ArchHead's "
-                            "canonical .npz (docs/formats.md).")
+    p = commands.add_parser(
+        "convert",
+        help="convert a tracked sequence to ArchHead's .npz",
+        description="Read a tracked FLAME sequence and write ArchHead's "
+        "canonical .npz (docs/formats.md).",
+    )
     p.add_argument("input", help="sequence file or folder")
     p.add_argument("output", help="canonical .npz to write (replaced atomically)")
     p.add_argument("--format", choices=FORMAT_NAMES, help="input format (default: detected)")
-    p.add_argument("--fps", type=float, help="frame rate, for formats that store none (or to "
-                   "override the stored one)")
-    p.add_argument("--camera", type=int, help="camera_index of a multi-view VHAP / "
-                   "GaussianAvatars folder (default: the lowest)")
+    p.add_argument(
+        "--fps",
+        type=float,
+        help="frame rate, for formats that store none (or to override the stored one)",
+    )
+    p.add_argument(
+        "--camera",
+        type=int,
+        help="camera_index of a multi-view VHAP / GaussianAvatars folder (default: the lowest)",
+    )
     p.set_defaults(run=_convert)
 
 
@@ -36,31 +44,41 @@ def _convert(args) -> int:
     seq = read_sequence(args.input, args.format, fps=args.fps, camera=args.camera)
     write_canonical(seq, args.output)
     camera = f"{seq.image_size[1]}x{seq.image_size[0]}" if seq.has_camera else "none"
-    print(f"{args.output}: {len(seq)} frames, {seq.fps:g} fps, from {seq.format}, shape "
-          f"{seq.shape.shape[1]}, expr {seq.expr.shape[1]}, camera {camera}")
+    print(
+        f"{args.output}: {len(seq)} frames, {seq.fps:g} fps, from {seq.format}, shape "
+        f"{seq.shape.shape[1]}, expr {seq.expr.shape[1]}, camera {camera}"
+    )
     return 0
 
 
+DEMO_MODULE = "scripts.demo"
+
+
 def _add_demo(commands) -> None:
-    p = commands.add_parser("demo", help="the whole pipeline on the built-in head (bpy module)",
-                            description="Synthetic subject, short training (or --checkpoint), "
-                            "import, decode, LOD driver on a dolly-in camera, clip, contact "
-                            "sheet, .blend: operators/script_demo.py, whose options it takes.")
+    p = commands.add_parser(
+        "demo",
+        help="the whole pipeline on the built-in head (bpy module)",
+        description="Synthetic subject, short training (or --checkpoint), "
+        "import, decode, LOD driver on a dolly-in camera, clip, contact "
+        "sheet, .blend: scripts/demo.py, whose options it takes.",
+    )
     p.set_defaults(run=_demo, passes_on=True)  # every other argument goes to the script
 
 
 def _demo(args) -> int:
     # A child process: bpy loads Blender's whole runtime, which this light CLI stays without.
-    script = Path(__file__).resolve().parents[1] / "operators" / "script_demo.py"
-    return subprocess.run([sys.executable, str(script), *args.options]).returncode
+    # The demo is a checkout's script (scripts/demo.py), reached as a module from the
+    # checkout's root, never by a path into the Blender side.
+    return subprocess.run([sys.executable, "-m", DEMO_MODULE, *args.options]).returncode
 
 
 COMMANDS = (_add_convert, _add_demo, add_track, add_subject)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m archhead_addon",
-                                     description="ArchHead command line tools.")
+    parser = argparse.ArgumentParser(
+        prog="python -m archhead_addon", description="ArchHead command line tools."
+    )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in COMMANDS:
         add(commands)

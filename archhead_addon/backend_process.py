@@ -31,8 +31,16 @@ def python_with_torch() -> str | None:
 
 
 def train_command(python: str, data_dir, out_dir, config=None, resume: bool = False) -> list:
-    cmd = [str(python), "-m", "archhead_addon.train", "--data", str(data_dir),
-           "--out", str(out_dir), "--progress-json"]
+    cmd = [
+        str(python),
+        "-m",
+        "archhead_addon.train",
+        "--data",
+        str(data_dir),
+        "--out",
+        str(out_dir),
+        "--progress-json",
+    ]
     if config:
         cmd += ["--config", str(config)]
     if resume:
@@ -62,16 +70,27 @@ class BackendRun:
         self._records: queue.SimpleQueue = queue.SimpleQueue()
         env = dict(os.environ)
         # the package shipped beside this file, whatever that Python's site-packages hold
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PACKAGE_ROOT),
-                                                          env.get("PYTHONPATH")]))
+        env["PYTHONPATH"] = os.pathsep.join(
+            filter(None, [str(PACKAGE_ROOT), env.get("PYTHONPATH")])
+        )
         env["PYTHONUNBUFFERED"] = "1"
         self.process = subprocess.Popen(
-            self.command, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, text=True, encoding="utf-8", errors="replace", bufsize=1,
-            start_new_session=True)  # Ctrl-C in Blender's terminal is not the backend's
-        self._readers = [threading.Thread(target=self._read, args=(stream, parse), daemon=True)
-                         for stream, parse in ((self.process.stdout, True),
-                                               (self.process.stderr, False))]
+            self.command,
+            cwd=cwd,
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            encoding="utf-8",
+            errors="replace",
+            bufsize=1,
+            start_new_session=True,
+        )  # Ctrl-C in Blender's terminal is not the backend's
+        self._readers = [
+            threading.Thread(target=self._read, args=(stream, parse), daemon=True)
+            for stream, parse in ((self.process.stdout, True), (self.process.stderr, False))
+        ]
         for reader in self._readers:
             reader.start()
         self.last: dict = {}  # the latest progress record

@@ -36,8 +36,9 @@ class BlenderCamera:
     sensor_height: float = 24.0
 
 
-def intrinsics_to_blender(K, width: int, height: int,
-                          sensor_width: float = SENSOR_WIDTH_MM) -> BlenderCamera:
+def intrinsics_to_blender(
+    K, width: int, height: int, sensor_width: float = SENSOR_WIDTH_MM
+) -> BlenderCamera:
     """Blender settings that project exactly like K at this resolution (no skew)."""
     K = np.asarray(K, dtype=np.float64)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -46,10 +47,15 @@ def intrinsics_to_blender(K, width: int, height: int,
     ycor = fx / fy  # Blender's pixel-aspect ratio y / x
     aspect_x, aspect_y = (1.0, ycor) if ycor >= 1 else (1.0 / ycor, 1.0)
     return BlenderCamera(
-        lens=fx * sensor_width / width, sensor_width=sensor_width,
-        shift_x=(width / 2 - cx) / width, shift_y=(cy - height / 2) * ycor / width,
-        resolution_x=int(width), resolution_y=int(height),
-        pixel_aspect_x=aspect_x, pixel_aspect_y=aspect_y)
+        lens=fx * sensor_width / width,
+        sensor_width=sensor_width,
+        shift_x=(width / 2 - cx) / width,
+        shift_y=(cy - height / 2) * ycor / width,
+        resolution_x=int(width),
+        resolution_y=int(height),
+        pixel_aspect_x=aspect_x,
+        pixel_aspect_y=aspect_y,
+    )
 
 
 def blender_to_intrinsics(cam: BlenderCamera) -> np.ndarray:
@@ -62,17 +68,24 @@ def blender_to_intrinsics(cam: BlenderCamera) -> np.ndarray:
     ycor = cam.pixel_aspect_y / cam.pixel_aspect_x
     fit, sensor = cam.sensor_fit, cam.sensor_width
     if fit == "AUTO":
-        fit = "HORIZONTAL" if cam.pixel_aspect_x * width >= cam.pixel_aspect_y * height else (
-            "VERTICAL")
+        fit = (
+            "HORIZONTAL"
+            if cam.pixel_aspect_x * width >= cam.pixel_aspect_y * height
+            else ("VERTICAL")
+        )
     elif fit == "VERTICAL":
         sensor = cam.sensor_height
     elif fit != "HORIZONTAL":
         raise ValueError(f"unknown sensor_fit {cam.sensor_fit!r}")
     side = width if fit == "HORIZONTAL" else ycor * height  # the fitted side, in x pixels
     fx = cam.lens * side / sensor
-    return np.array([[fx, 0, width / 2 - cam.shift_x * side],
-                     [0, fx / ycor, height / 2 + cam.shift_y * side / ycor],
-                     [0, 0, 1]])
+    return np.array(
+        [
+            [fx, 0, width / 2 - cam.shift_x * side],
+            [0, fx / ycor, height / 2 + cam.shift_y * side / ycor],
+            [0, 0, 1],
+        ]
+    )
 
 
 def w2c_to_blender_matrix_world(w2c, flame_world: bool = True) -> np.ndarray:

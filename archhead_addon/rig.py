@@ -21,16 +21,26 @@ from .rotations import axis_angle_to_matrix, axis_angle_to_quaternion
 
 # (R - I)[r, c] for a unit quaternion (w, x, y, z), row-major like FLAME's pose feature
 POSE_FEATURE_EXPRESSIONS = (
-    "-2*(y*y+z*z)", "2*(x*y-w*z)", "2*(x*z+w*y)",
-    "2*(x*y+w*z)", "-2*(x*x+z*z)", "2*(y*z-w*x)",
-    "2*(x*z-w*y)", "2*(y*z+w*x)", "-2*(x*x+y*y)",
+    "-2*(y*y+z*z)",
+    "2*(x*y-w*z)",
+    "2*(x*z+w*y)",
+    "2*(x*y+w*z)",
+    "-2*(x*x+z*z)",
+    "2*(y*z-w*x)",
+    "2*(x*z-w*y)",
+    "2*(y*z+w*x)",
+    "-2*(x*x+y*y)",
 )
 
 
 def pose_corrective_names() -> list[tuple[str, str, int]]:
     """(shape key name, bone name, feature entry 0..8) for the 36 correctives, FLAME order."""
-    return [(f"pose_{bone}_{r}{c}", bone, 3 * r + c)
-            for bone in JOINT_NAMES[1:] for r in range(3) for c in range(3)]
+    return [
+        (f"pose_{bone}_{r}{c}", bone, 3 * r + c)
+        for bone in JOINT_NAMES[1:]
+        for r in range(3)
+        for c in range(3)
+    ]
 
 
 @dataclass
@@ -59,7 +69,7 @@ def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnima
         rest = rest + np.asarray(seq.static_offset).reshape(-1, 3)[: model.n_verts]
     rest_joints = model.j_regressor @ rest
     e0 = model.n_shape
-    expr_dirs = np.moveaxis(model.shapedirs[:, :, e0:e0 + n_expr], 2, 0)  # (E,V,3)
+    expr_dirs = np.moveaxis(model.shapedirs[:, :, e0 : e0 + n_expr], 2, 0)  # (E,V,3)
     expr = np.asarray(seq.expr, dtype=np.float64)[:, :n_expr]
     # joint displacement per expression unit: (E,5,3)
     joint_dirs = np.einsum("jv,evc->ejc", model.j_regressor, expr_dirs)
@@ -69,11 +79,16 @@ def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnima
     locs = d_joints - np.einsum("tjrc,tjc->tjr", rot, d_joints)
     locs[:, 0] += np.asarray(seq.translation, dtype=np.float64)
     return RigAnimation(
-        rest_vertices=rest, rest_joints=rest_joints, expr_deltas=expr_dirs,
-        pose_deltas=np.moveaxis(model.posedirs, 2, 0), expr=expr,
-        bone_quats=continuous_quaternions(axis_angle_to_quaternion(pose)), bone_locs=locs,
+        rest_vertices=rest,
+        rest_joints=rest_joints,
+        expr_deltas=expr_dirs,
+        pose_deltas=np.moveaxis(model.posedirs, 2, 0),
+        expr=expr,
+        bone_quats=continuous_quaternions(axis_angle_to_quaternion(pose)),
+        bone_locs=locs,
         pose_feature=(rot[:, 1:] - np.eye(3)).reshape(len(rot), -1),
-        identity_shape=identity)
+        identity_shape=identity,
+    )
 
 
 def continuous_quaternions(q: np.ndarray) -> np.ndarray:

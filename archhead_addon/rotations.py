@@ -114,15 +114,24 @@ def matrix_to_quaternion(R):
     R = ops.asarray(R)
     m = ops.m
     r00, r11, r22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    r01, r02, r10, r12, r20, r21 = (R[..., 0, 1], R[..., 0, 2], R[..., 1, 0],
-                                    R[..., 1, 2], R[..., 2, 0], R[..., 2, 1])
+    r01, r02, r10, r12, r20, r21 = (
+        R[..., 0, 1],
+        R[..., 0, 2],
+        R[..., 1, 0],
+        R[..., 1, 2],
+        R[..., 2, 0],
+        R[..., 2, 1],
+    )
     # Each candidate is 4 * pivot * (w, x, y, z) for one choice of pivot.
-    cand = ops.stack([
-        ops.stack([1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01], -1),
-        ops.stack([r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20], -1),
-        ops.stack([r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21], -1),
-        ops.stack([r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22], -1),
-    ], -2)
+    cand = ops.stack(
+        [
+            ops.stack([1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01], -1),
+            ops.stack([r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20], -1),
+            ops.stack([r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21], -1),
+            ops.stack([r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22], -1),
+        ],
+        -2,
+    )
     pivots = ops.stack([cand[..., 0, 0], cand[..., 1, 1], cand[..., 2, 2], cand[..., 3, 3]], -1)
     best = ops.argmax(pivots, -1)
     idx = best[..., None, None]

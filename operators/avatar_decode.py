@@ -1,61 +1,17 @@
-"""Decode an avatar's frame set (keyed frames, every frame or a stride, in the scene's range)
-into the caches, each frame at the level of detail it will have.
-
-The operator is modal: a timer decodes one frame per tick, so the interface stays live,
-shows progress (cursor, status bar, N-panel) and stops on Esc or the panel's Cancel.
-Scripts call `decode_frames`, which does the same work in one go.
-"""
+"""Decode Frames: the avatar's frame set into the caches, one frame per timer tick, so the
+interface stays live, shows progress (cursor, status bar, N-panel) and stops on Esc or the
+panel's Cancel. The work is archhead_blender.decoding's."""
 
 from __future__ import annotations
 
 import bpy
 
-from ..archhead_addon.avatar.frame_selection import frames_to_decode
-from ..archhead_addon.io.errors import InputError
-from .avatar_load import active_avatar
-from .avatar_session import Decoded, session
-from .handlers import refresh_avatar, resume, suspend
-from .scene_state import avatar_lod, frame_codes, head_rig, keyed_frames
-
-progress: dict[int, dict] = {}  # object session_uid -> {"done", "total", "cancel"}
-
-
-def decode_set(scene, obj) -> list[int]:
-    settings = obj.archhead_avatar
-    head = settings.head
-    keyed = ()
-    if settings.decode_frames == "KEYED":
-        keyed = keyed_frames(head_rig(head), head.data.shape_keys, obj)
-    return frames_to_decode(settings.decode_frames, scene.frame_start, scene.frame_end, keyed,
-                            settings.stride)
-
-
-def decode_frame(context, obj, frame: int) -> None:
-    """Move to `frame`, read the codes and level of detail there, decode into the caches."""
-    avatar = session(obj)
-    context.scene.frame_set(frame)
-    depsgraph = context.evaluated_depsgraph_get()
-    codes = frame_codes(obj.archhead_avatar.head, depsgraph, avatar.joint_dirs)
-    lod = avatar.lod_override if avatar.lod_override is not None else avatar_lod(obj, depsgraph)
-    key, _ = avatar.frame(codes, lod)
-    avatar.decoded[frame] = Decoded(key, codes, lod)
-
-
-def decode_frames(context, obj, frames=None) -> int:
-    """Decode `frames` (default: the object's decode set); returns how many."""
-    scene = context.scene
-    frames = decode_set(scene, obj) if frames is None else list(frames)
-    session(obj).decoded.clear()
-    start = scene.frame_current
-    suspend()
-    try:
-        for frame in frames:
-            decode_frame(context, obj, frame)
-    finally:
-        scene.frame_set(start)
-        resume()
-    refresh_avatar(obj, scene, context.evaluated_depsgraph_get())
-    return len(frames)
+from archhead_addon.io.errors import InputError
+from archhead_blender.avatar_objects import active_avatar
+from archhead_blender.avatar_session import session
+from archhead_blender.decoding import decode_frame, decode_frames, decode_set
+from archhead_blender.handlers import refresh_avatar, resume, suspend
+from archhead_blender.state import STATE
 
 
 class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
@@ -90,7 +46,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         self.frames = decode_set(context.scene, self.obj)
         self.start = context.scene.frame_current
         self.uid = self.obj.session_uid
-        progress[self.uid] = {"done": 0, "total": len(self.frames), "cancel": False}
+        STATE.decode_progress[self.uid] = {"done": 0, "total": len(self.frames), "cancel": False}
         wm = context.window_manager
         wm.progress_begin(0, max(len(self.frames), 1))
         self.timer = wm.event_timer_add(0.001, window=context.window)
@@ -99,7 +55,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        state = progress[self.uid]
+        state = STATE.decode_progress[self.uid]
         if event.type == "ESC" or state["cancel"]:
             return self._finish(context, f"Cancelled after {state['done']} frames")
         if event.type != "TIMER":
@@ -125,15 +81,14 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         wm.progress_end()
         if context.workspace is not None:
             context.workspace.status_text_set(None)
-        progress.pop(self.uid, None)
+        STATE.decode_progress.pop(self.uid, None)
         context.scene.frame_set(self.start)
         resume()
         refresh_avatar(self.obj, context.scene, context.evaluated_depsgraph_get())
         _redraw_sidebars(context)
         if message:
             self.report({"INFO"}, message)
-        return {"FINISHED"} if message and not message.startswith("Cancelled") \
-            else {"CANCELLED"}
+        return {"FINISHED"} if message and not message.startswith("Cancelled") else {"CANCELLED"}
 
 
 class ARCHHEAD_OT_cancel_decode(bpy.types.Operator):
@@ -144,7 +99,7 @@ class ARCHHEAD_OT_cancel_decode(bpy.types.Operator):
     bl_options = {"INTERNAL"}
 
     def execute(self, context):
-        for state in progress.values():
+        for state in STATE.decode_progress.values():
             state["cancel"] = True
         return {"FINISHED"}
 

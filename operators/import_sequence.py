@@ -1,4 +1,5 @@
-"""File > Import > Tracked FLAME sequence: reads any supported format into a rigged head."""
+"""File > Import > Tracked FLAME sequence: reads any supported format into a rigged head
+(archhead_blender.importing does the work)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,9 @@ from pathlib import Path
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..archhead_addon.io.errors import InputError, InputWarning
-from ..archhead_addon.sequences import read_sequence
-from ..panels.preferences import get_preferences
-from .head_builder import ImportOptions, build_head
-from .model_cache import head_model
+from archhead_addon.io.errors import InputError, InputWarning
+from archhead_blender.importing import import_sequence
+from archhead_blender.preferences import get_preferences
 
 
 class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
@@ -23,32 +22,57 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
     bl_options = {"REGISTER", "UNDO", "PRESET"}
 
     filename_ext = ""
-    filter_glob: bpy.props.StringProperty(default="*.npz;*.frame;*.json;*.pt;*.pkl",
-                                          options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(
+        default="*.npz;*.frame;*.json;*.pt;*.pkl", options={"HIDDEN"}
+    )
     directory: bpy.props.StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
 
-    frame_start: bpy.props.IntProperty(name="First frame", min=0, default=0,
-                                       description="First sequence frame to import (0-based)")
-    frame_end: bpy.props.IntProperty(name="Last frame", min=-1, default=-1,
-                                     description="Last sequence frame to import; -1 = the end")
-    stride: bpy.props.IntProperty(name="Stride", min=1, default=1,
-                                  description="Import every n-th frame")
-    target_fps: bpy.props.FloatProperty(name="Scene fps", min=0.0, default=0.0,
-                                        description="Scene frame rate; 0 = the sequence's. "
-                                                    "Keys stay at their time")
-    n_expr: bpy.props.IntProperty(name="Expressions", min=0, max=400, default=100,
-                                  description="Expression components kept as shape keys "
-                                              "(fewer = lighter scene)")
-    use_camera: bpy.props.BoolProperty(name="Camera", default=True,
-                                       description="Create the tracked camera when there is one")
+    frame_start: bpy.props.IntProperty(
+        name="First frame", min=0, default=0, description="First sequence frame to import (0-based)"
+    )
+    frame_end: bpy.props.IntProperty(
+        name="Last frame",
+        min=-1,
+        default=-1,
+        description="Last sequence frame to import; -1 = the end",
+    )
+    stride: bpy.props.IntProperty(
+        name="Stride", min=1, default=1, description="Import every n-th frame"
+    )
+    target_fps: bpy.props.FloatProperty(
+        name="Scene fps",
+        min=0.0,
+        default=0.0,
+        description="Scene frame rate; 0 = the sequence's. Keys stay at their time",
+    )
+    n_expr: bpy.props.IntProperty(
+        name="Expressions",
+        min=0,
+        max=400,
+        default=100,
+        description="Expression components kept as shape keys (fewer = lighter scene)",
+    )
+    use_camera: bpy.props.BoolProperty(
+        name="Camera", default=True, description="Create the tracked camera when there is one"
+    )
     pose_correctives: bpy.props.EnumProperty(
         name="Pose correctives",
-        items=(("DRIVERS", "Driven by bones", "36 corrective shape keys driven by simple "
-                "expressions of the bones' rotations: they follow any later bone edit"),
-               ("KEYFRAMES", "Keyframed", "36 corrective shape keys keyframed from the tracked "
-                "rotations"),
-               ("NONE", "None", "No pose correctives (lighter, not exact)")),
-        default="DRIVERS")
+        items=(
+            (
+                "DRIVERS",
+                "Driven by bones",
+                "36 corrective shape keys driven by simple "
+                "expressions of the bones' rotations: they follow any later bone edit",
+            ),
+            (
+                "KEYFRAMES",
+                "Keyframed",
+                "36 corrective shape keys keyframed from the tracked rotations",
+            ),
+            ("NONE", "None", "No pose correctives (lighter, not exact)"),
+        ),
+        default="DRIVERS",
+    )
 
     def execute(self, context):
         path = Path(self.filepath)
@@ -58,8 +82,12 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", InputWarning)
-                obj = import_sequence(context, path, self.import_options(),
-                                      model_path=prefs.flame_model_path if prefs else "")
+                obj = import_sequence(
+                    context,
+                    path,
+                    self.import_options(),
+                    model_path=prefs.flame_model_path if prefs else "",
+                )
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -70,23 +98,12 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
     def import_options(self) -> dict:
-        return {"frame_start": self.frame_start, "frame_end": self.frame_end,
-                "stride": self.stride, "fps": self.target_fps or None, "n_expr": self.n_expr,
-                "camera": self.use_camera, "pose_correctives": self.pose_correctives}
-
-
-def import_sequence(context, path, options: dict | None = None, model_path: str = ""):
-    """Read `path`, fit it to the model and build the head; returns the armature object.
-
-    Shared by the operator, scripts and tests (`blender -b --python` or the bpy module).
-    """
-    options = dict(options or {})
-    model = head_model(model_path)
-    seq = read_sequence(path).fit_to_model(model)
-    end = options.pop("frame_end", -1)
-    seq = seq.subset(options.pop("frame_start", 0), None if end < 0 else end + 1,
-                     options.pop("stride", 1))
-    info = {"sequence": str(path), "format": seq.format, "frames": len(seq),
-            "source_fps": seq.fps}
-    return build_head(context, model, seq, ImportOptions(name=Path(path).stem or "ArchHead",
-                                                         **options), info)
+        return {
+            "frame_start": self.frame_start,
+            "frame_end": self.frame_end,
+            "stride": self.stride,
+            "fps": self.target_fps or None,
+            "n_expr": self.n_expr,
+            "camera": self.use_camera,
+            "pose_correctives": self.pose_correctives,
+        }

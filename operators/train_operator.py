@@ -1,159 +1,27 @@
-"""Train an avatar from Blender: the backend runs as a child process of the Python set in the
-preferences (Blender's own Python never imports torch), watched by a modal operator whose
-timer reads its JSON progress lines without blocking. Progress and ETA show in the N-panel
-and the status bar; Cancel sends SIGINT (the backend saves), escalating if it must; the log
-stays in the output folder; the finished checkpoint is loaded onto the head.
-"""
+"""Train Avatar and Cancel Training: a modal operator around archhead_blender.training.
+
+Its properties' defaults are the command line's preset (train/config.py DEFAULT_PRESET); only
+the ones the user set override it, so both start the same avatar."""
 
 from __future__ import annotations
 
-import json
 import time
-from pathlib import Path
 
 import bpy
 
-from ..archhead_addon.backend_process import (
-    BackendRun,
-    format_eta,
-    python_with_torch,
-    train_command,
+from archhead_addon.io.errors import InputError
+from archhead_addon.train.config import config_data
+from archhead_blender.avatar_objects import head_of
+from archhead_blender.training import (
+    POLL_S,
+    current_run,
+    finish_training,
+    start_training,
+    training_settings,
 )
-from ..archhead_addon.io.errors import InputError
-from ..archhead_addon.sequences import read_sequence, write_canonical
-from ..panels.preferences import get_preferences
-from .avatar_load import head_of, load_avatar
-from .avatar_session import flame_model_path
 
-AVATAR_FILE, LOG_FILE, REQUEST_FILE = "avatar.npz", "train.log", "train_request.json"
-POLL_S = 0.5  # how often the timer reads the backend's progress
-_run: dict = {"current": None}
-
-
-class TrainingRun:
-    """A started backend with what the interface shows about it."""
-
-    def __init__(self, backend: BackendRun, out_dir: Path, head_name: str | None):
-        self.backend, self.out_dir, self.head_name = backend, out_dir, head_name
-        self.step = self.total = self.stage = 0
-        self.seconds_per_step = self.eta = None
-        self.loss: dict = {}
-        self.error: str | None = None
-        self.avatar = out_dir / AVATAR_FILE
-
-    def update(self) -> bool:
-        """Read new progress (train/progress.py's events); True once the process exited."""
-        for record in self.backend.poll():
-            event = record.get("event")
-            if event == "step":
-                self.step, self.total = int(record["step"]), int(record["total"])
-                self.stage = record.get("stage", self.stage)
-                self.seconds_per_step = record.get("seconds_per_step")
-                self.eta = record.get("eta_seconds")
-                self.loss = record.get("loss", {})
-            elif event == "start":
-                self.step, self.total = int(record["step"]), int(record["total"])
-            elif event == "error":
-                self.error = record.get("message")
-            if "avatar" in record:
-                self.avatar = Path(record["avatar"])
-        return self.backend.returncode is not None
-
-    @property
-    def fraction(self) -> float:
-        return self.step / self.total if self.total else 0.0
-
-    def summary(self) -> str:
-        if self.backend.cancelled_at is not None:
-            return "Stopping (saving a checkpoint) ..."
-        if not self.total:
-            return "Starting ..."
-        rate = f", {self.seconds_per_step:.2f} s/step" if self.seconds_per_step else ""
-        return (f"Stage {self.stage}: {self.step} / {self.total}{rate}, "
-                f"ETA {format_eta(self.eta)}")
-
-    def loss_text(self) -> str:
-        if not self.loss:
-            return ""
-        total = self.loss.get("total")
-        terms = ", ".join(f"{k} {v:.4g}" for k, v in self.loss.items() if k != "total")
-        return f"loss {total:.4g} ({terms})" if total is not None else terms
-
-
-def current_run() -> TrainingRun | None:
-    return _run["current"]
-
-
-def backend_python(context) -> str:
-    """The preferences' Python, else this process's Python when it has torch (the bpy module
-    in the project's environment); Blender's bundled Python has none."""
-    prefs = get_preferences(context)
-    if prefs and prefs.backend_python:
-        return bpy.path.abspath(prefs.backend_python)
-    python = python_with_torch()
-    if python is not None:
-        return python
-    raise ValueError("set 'Backend Python' in ArchHead's preferences to the Python of an "
-                     "environment with torch")
-
-
-def prepare_data(frames_dir, tracking, out_dir) -> Path:
-    """The backend's data folder (DATA/frames, DATA/tracking.npz, optional masks/ and parts/
-    beside frames/). When the picks already form one, it is used as it is; otherwise
-    OUT/data links the frames folder and holds the tracking converted to the canonical npz."""
-    frames_dir, tracking = Path(frames_dir).resolve(), Path(tracking).resolve()
-    if not frames_dir.is_dir():
-        raise InputError(frames_dir, None, "frames folder not found")
-    source = frames_dir.parent
-    if frames_dir.name == "frames" and tracking == source / "tracking.npz":
-        return source
-    data = Path(out_dir) / "data"
-    data.mkdir(parents=True, exist_ok=True)
-    for name, target in (("frames", frames_dir), ("masks", source / "masks"),
-                         ("parts", source / "parts")):
-        link = data / name
-        if link.is_symlink():
-            link.unlink()
-        if target.is_dir() and not link.exists():
-            link.symlink_to(target, target_is_directory=True)
-    write_canonical(read_sequence(tracking), data / "tracking.npz")
-    return data
-
-
-def start_training(context, frames_dir, tracking, out_dir, settings: dict,
-                   resume: bool = False, head_name: str | None = None) -> TrainingRun:
-    """Write the config, launch the backend, remember the run for the panel."""
-    if current_run() is not None:
-        raise ValueError("a training run is already going; cancel it first")
-    out_dir = Path(out_dir).resolve()
-    data = prepare_data(frames_dir, tracking, out_dir)
-    config = out_dir / REQUEST_FILE
-    config.write_text(json.dumps(settings, indent=1) + "\n")
-    command = train_command(backend_python(context), data, out_dir, config, resume)
-    model = flame_model_path(context)
-    if model:
-        command += ["--flame", bpy.path.abspath(model)]
-    backend = BackendRun(command, out_dir / LOG_FILE)
-    _run["current"] = run = TrainingRun(backend, out_dir, head_name)
-    return run
-
-
-def finish_training(context, run: TrainingRun) -> tuple[str, str]:
-    """Close the run; load its checkpoint onto the head. Returns (report type, message)."""
-    _run["current"] = None
-    run.update()
-    run.backend.close()
-    code = run.backend.returncode
-    checkpoint = run.avatar
-    cancelled = run.backend.cancelled_at is not None
-    if code != 0 and not (cancelled and checkpoint.is_file()):
-        reason = run.error or f"exit code {code}"
-        return "ERROR", f"training failed ({reason}); see {run.out_dir / LOG_FILE}"
-    head = bpy.data.objects.get(run.head_name) if run.head_name else None
-    if head is not None and checkpoint.is_file():
-        load_avatar(context, head, checkpoint)
-        return "INFO", f"{'Stopped' if cancelled else 'Trained'}: {checkpoint} loaded"
-    return "INFO", f"{'Stopped' if cancelled else 'Trained'}: {checkpoint}"
+PRESET = config_data()  # read once: the properties' defaults
+OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
 
 
 class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
@@ -162,20 +30,27 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
     bl_idname = "archhead.train_avatar"
     bl_label = "Train Avatar"
 
-    frames_dir: bpy.props.StringProperty(name="Frames", subtype="DIR_PATH",
-                                         description="Folder of numbered video frames")
-    tracking: bpy.props.StringProperty(name="Tracking", subtype="FILE_PATH",
-                                       description="The frames' FLAME tracking (any format "
-                                                   "the importer reads)")
-    out_dir: bpy.props.StringProperty(name="Output", subtype="DIR_PATH",
-                                      description="Checkpoints, config and log go here")
-    resolution: bpy.props.IntProperty(name="Resolution", min=32, default=256)
-    stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0, default=1000)
-    stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0, default=500)
+    frames_dir: bpy.props.StringProperty(
+        name="Frames", subtype="DIR_PATH", description="Folder of numbered video frames"
+    )
+    tracking: bpy.props.StringProperty(
+        name="Tracking",
+        subtype="FILE_PATH",
+        description="The frames' FLAME tracking (any format the importer reads)",
+    )
+    out_dir: bpy.props.StringProperty(
+        name="Output", subtype="DIR_PATH", description="Checkpoints, config and log go here"
+    )
+    resolution: bpy.props.IntProperty(name="Resolution", min=32, default=PRESET["resolution"])
+    stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0, default=PRESET["stage1_steps"])
+    stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0, default=PRESET["stage2_steps"])
     resume: bpy.props.BoolProperty(name="Resume", description="Continue the run in Output")
     base_config: bpy.props.StringProperty(
-        name="Base config", subtype="FILE_PATH",
-        description="Optional training config (JSON); the fields above override its values")
+        name="Base config",
+        subtype="FILE_PATH",
+        description="Optional training config (JSON) in place of the command line's preset; "
+        "the fields above override its values where you changed them",
+    )
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self, width=420)
@@ -183,15 +58,18 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
     def execute(self, context):
         head = head_of(context.active_object)
         try:
-            settings = {}
-            if self.base_config:
-                settings = json.loads(Path(bpy.path.abspath(self.base_config)).read_text())
-            settings.update(resolution=self.resolution, stage1_steps=self.stage1_steps,
-                            stage2_steps=self.stage2_steps)
-            self.run = start_training(context, bpy.path.abspath(self.frames_dir),
-                                      bpy.path.abspath(self.tracking),
-                                      bpy.path.abspath(self.out_dir), settings, self.resume,
-                                      head.name if head else None)
+            settings = training_settings(
+                self.overrides(), bpy.path.abspath(self.base_config) if self.base_config else ""
+            )
+            self.run = start_training(
+                context,
+                bpy.path.abspath(self.frames_dir),
+                bpy.path.abspath(self.tracking),
+                bpy.path.abspath(self.out_dir),
+                settings,
+                self.resume,
+                head.name if head else None,
+            )
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -204,13 +82,22 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
         wm.modal_handler_add(self)
         return {"RUNNING_MODAL"}
 
+    def overrides(self) -> dict:
+        """The fields the user (or a script) set; the rest come from the base config."""
+        return {
+            name: getattr(self, name)
+            for name in OVERRIDABLE
+            if self.properties.is_property_set(name)
+        }
+
     def modal(self, context, event):
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         done = self.run.update()
         if context.workspace is not None:
-            context.workspace.status_text_set(None if done else f"ArchHead training: "
-                                              f"{self.run.summary()}")
+            context.workspace.status_text_set(
+                None if done else f"ArchHead training: {self.run.summary()}"
+            )
         for area in context.screen.areas if context.screen else ():
             if area.type == "VIEW_3D":
                 area.tag_redraw()
@@ -242,11 +129,3 @@ class ARCHHEAD_OT_cancel_training(bpy.types.Operator):
     def execute(self, context):
         current_run().backend.cancel()
         return {"FINISHED"}
-
-
-def unregister():
-    """Disabling the add-on stops a running backend cleanly (it saves on SIGINT)."""
-    run = current_run()
-    if run is not None:
-        run.backend.cancel()
-        _run["current"] = None

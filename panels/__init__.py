@@ -1,18 +1,11 @@
-"""N-panel (View3D sidebar, tab "ArchHead") and add-on preferences."""
+"""The N-panel (View3D sidebar, tab "ArchHead"): UI only. Preferences are registered with the
+rest of the Blender side (archhead_blender)."""
 
 import bpy
 
-from . import main_panel, preferences
+from . import main_panel
 
 _CLASSES = (main_panel.ARCHHEAD_PT_main,)
-
-
-def register_preferences():
-    bpy.utils.register_class(preferences.ArchHeadPreferences)
-
-
-def unregister_preferences():
-    bpy.utils.unregister_class(preferences.ArchHeadPreferences)
 
 
 def register():

@@ -2,20 +2,11 @@
 
 import bpy
 
-from .preferences import get_preferences
-
-
-def active_head(context):
-    """The imported head for the active object (the head itself, its armature or avatar)."""
-    obj = context.active_object
-    if obj is None:
-        return None
-    if "archhead_model_id" in obj:
-        return obj
-    if obj.type == "MESH" and obj.archhead_avatar.checkpoint:
-        return obj.archhead_avatar.head
-    name = obj.get("archhead_head")
-    return bpy.data.objects.get(name) if name else None
+from archhead_blender.avatar_objects import avatar_of, head_of
+from archhead_blender.features import missing_kernel
+from archhead_blender.preferences import get_preferences
+from archhead_blender.state import STATE
+from archhead_blender.training import current_run
 
 
 class ARCHHEAD_PT_main(bpy.types.Panel):
@@ -32,24 +23,25 @@ class ARCHHEAD_PT_main(bpy.types.Panel):
         layout.label(text=f"Model: {bpy.path.basename(model) or model}", icon="MESH_MONKEY")
         layout.operator("archhead.import_sequence", icon="IMPORT")
         _draw_training(layout, context)
-        head = active_head(context)
+        missing = missing_kernel()
+        if missing:
+            layout.label(text=missing, icon="INFO")
+        head = head_of(context.active_object)
         if head is None:
             layout.label(text="No imported head selected")
             return
         box = layout.box()
         box.label(text=head.name, icon="OUTLINER_OB_ARMATURE")
-        box.label(text=f"Frames: {head.get('archhead_frames', '?')}  "
-                       f"fps: {head.get('archhead_source_fps', 0):g}")
+        box.label(
+            text=f"Frames: {head.get('archhead_frames', '?')}  "
+            f"fps: {head.get('archhead_source_fps', 0):g}"
+        )
         box.label(text=f"Format: {head.get('archhead_format', '?')}")
         box.label(text=f"Expressions: {head.get('archhead_n_expr', 0)}")
         _draw_avatar(layout, context, head)
 
 
 def _draw_avatar(layout, context, head):
-    from ..operators.avatar_decode import progress
-    from ..operators.avatar_load import avatar_of
-    from ..operators.handlers import errors
-
     box = layout.box()
     obj = avatar_of(head)
     if obj is None:
@@ -58,8 +50,8 @@ def _draw_avatar(layout, context, head):
     settings = obj.archhead_avatar
     box.label(text=f"{obj.name}: {len(obj.data.vertices):,} Gaussians", icon="POINTCLOUD_DATA")
     box.label(text=bpy.path.basename(settings.checkpoint), icon="FILE")
-    if obj.session_uid in errors:
-        box.label(text=errors[obj.session_uid], icon="ERROR")
+    if obj.session_uid in STATE.errors:
+        box.label(text=STATE.errors[obj.session_uid], icon="ERROR")
     box.prop(settings, "lod", slider=True)
     box.operator("archhead.drive_lod", icon="DRIVER")
     col = box.column(align=True)
@@ -67,13 +59,15 @@ def _draw_avatar(layout, context, head):
     if settings.decode_frames == "STRIDE":
         col.prop(settings, "stride")
     col.prop(settings, "between")
-    state = progress.get(obj.session_uid)
+    state = STATE.decode_progress.get(obj.session_uid)
     if state is None:
         box.operator("archhead.decode_avatar", icon="RENDER_ANIMATION")
     else:
         row = box.row()
-        row.progress(factor=state["done"] / max(state["total"], 1),
-                     text=f"Decoding {state['done']} / {state['total']}")
+        row.progress(
+            factor=state["done"] / max(state["total"], 1),
+            text=f"Decoding {state['done']} / {state['total']}",
+        )
         row.operator("archhead.cancel_decode", text="", icon="CANCEL")
     col = box.column(align=True)
     col.prop(settings, "view_dependent")
@@ -86,8 +80,6 @@ def _draw_avatar(layout, context, head):
 
 
 def _draw_training(layout, context):
-    from ..operators.train_operator import current_run
-
     run = current_run()
     if run is None:
         layout.operator("archhead.train_avatar", icon="EXPERIMENTAL")

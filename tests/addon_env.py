@@ -1,11 +1,10 @@
-"""Installs the add-on into the bpy module the way Blender does: the extension build of this
-repository (Blender's own `blender_ext.py build`), then `extensions.package_install_files`."""
+"""Installs the add-on into the bpy module the way Blender does: the extension zip that
+`make extension` builds (scripts/build_extension.py), then `extensions.package_install_files`
+(which also installs the zip's wheel of archhead_addon and archhead_blender)."""
 
 from __future__ import annotations
 
 import importlib
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -16,13 +15,9 @@ _state: dict = {}
 
 
 def build_extension(out_dir: Path) -> Path:
-    import bpy
+    from scripts.build_extension import build
 
-    tool = Path(bpy.utils.system_resource("SCRIPTS")) / "addons_core/bl_pkg/cli/blender_ext.py"
-    subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(REPO_ROOT),
-                    "--output-dir", str(out_dir)], check=True, capture_output=True, text=True)
-    (zip_path,) = out_dir.glob("archhead-*.zip")
-    return zip_path
+    return build(out_dir)
 
 
 def installed_addon():
@@ -35,9 +30,16 @@ def installed_addon():
         repo_dir = work / "repo"
         repo_dir.mkdir()
         bpy.context.preferences.extensions.repos.new(
-            name=REPO_MODULE, module=REPO_MODULE, custom_directory=str(repo_dir), source="USER")
-        bpy.ops.extensions.package_install_files(filepath=str(zip_path), repo=REPO_MODULE,
-                                                 enable_on_install=True)
+            name=REPO_MODULE, module=REPO_MODULE, custom_directory=str(repo_dir), source="USER"
+        )
+        bpy.ops.extensions.package_install_files(
+            filepath=str(zip_path), repo=REPO_MODULE, enable_on_install=True
+        )
         _state["module"] = importlib.import_module(ADDON_MODULE)
         _state["zip"] = zip_path
     return _state["module"]
+
+
+def state() -> dict:
+    """What installed_addon() built: {"module", "zip"}."""
+    return _state

@@ -12,8 +12,9 @@ def random_model_arrays(n_verts=60, n_shape=8, n_expr=6, seed=0) -> dict:
     rng = np.random.default_rng(seed)
     v = rng.normal(size=(n_verts, 3))
     v = 0.1 * v / np.linalg.norm(v, axis=1, keepdims=True)
-    faces = np.stack([np.arange(n_verts - 2), np.arange(1, n_verts - 1),
-                      np.arange(2, n_verts)], axis=1)
+    faces = np.stack(
+        [np.arange(n_verts - 2), np.arange(1, n_verts - 1), np.arange(2, n_verts)], axis=1
+    )
     weights = rng.random((n_verts, 5)) ** 3
     weights /= weights.sum(1, keepdims=True)
     jreg = rng.random((5, n_verts))

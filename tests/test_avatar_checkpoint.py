@@ -79,7 +79,7 @@ def test_truncated_or_damaged_files_give_a_clear_error(saved, tmp_path):
     damaged = tmp_path / "damaged.npz"
     middle = bytearray(data)
     at = data.index(b"param/features.256") + 4096
-    middle[at:at + 16] = bytes(16)
+    middle[at : at + 16] = bytes(16)
     damaged.write_bytes(bytes(middle))
     with pytest.raises(InputError, match="corrupt") as e:
         read_checkpoint(damaged)

@@ -46,8 +46,11 @@ def test_blend_weights_match_a_hand_computation():
     # at a level's own size that level gets the most, yet every weight stays positive:
     # S = 128: d = ln 2, 0, ln 2 -> w = (e, 1, e) / (1 + 2e), e = exp(-ln 2 / 0.35) = 0.138011
     e = 0.138011
-    np.testing.assert_allclose(blend_weights((256, 128, 64), 128, 0.35),
-                               [e / (1 + 2 * e), 1 / (1 + 2 * e), e / (1 + 2 * e)], atol=2e-6)
+    np.testing.assert_allclose(
+        blend_weights((256, 128, 64), 128, 0.35),
+        [e / (1 + 2 * e), 1 / (1 + 2 * e), e / (1 + 2 * e)],
+        atol=2e-6,
+    )
     assert blend_weights((128,), 77, 0.35).tolist() == [1.0]
 
 
@@ -65,8 +68,9 @@ def test_blend_weights_change_continuously_across_resolutions():
 @pytest.mark.parametrize("dst", [64, 97, 128, 185, 255, 256])
 def test_numpy_bicubic_reproduces_torch(src, dst):
     maps = np.random.default_rng(src + dst).normal(size=(8, src, src)).astype(np.float32)
-    ref = F.interpolate(torch.from_numpy(maps)[None], size=(dst, dst), mode="bicubic",
-                        align_corners=False)[0].numpy()
+    ref = F.interpolate(
+        torch.from_numpy(maps)[None], size=(dst, dst), mode="bicubic", align_corners=False
+    )[0].numpy()
     out = resize(maps, dst)
     assert out.dtype == np.float32 and out.shape == (8, dst, dst)
     np.testing.assert_allclose(out, ref, atol=1e-5)

@@ -23,8 +23,9 @@ def make_avatar(config=None, seed=0, random_weights=True, head=None):
     that makes all inputs matter (the untrained init is nearly constant by design)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    avatar = ArchHeadAvatar.create(head or sphere_head(), identity_shape=rng.normal(size=10),
-                                   config=config)
+    avatar = ArchHeadAvatar.create(
+        head or sphere_head(), identity_shape=rng.normal(size=10), config=config
+    )
     if random_weights:
         with torch.no_grad():
             for p in avatar.parameters():
@@ -36,9 +37,14 @@ def make_avatar(config=None, seed=0, random_weights=True, head=None):
 
 def frame_codes(seed=1, scale=1.0):
     rng = np.random.default_rng(seed)
-    return {"expr": scale * rng.normal(size=100), "jaw": scale * rng.normal(size=3) * 0.3,
-            "neck": scale * rng.normal(size=3) * 0.2, "eyes": scale * rng.normal(size=6) * 0.2,
-            "rotation": rng.normal(size=3) * 0.5, "translation": rng.normal(size=3) * 0.2}
+    return {
+        "expr": scale * rng.normal(size=100),
+        "jaw": scale * rng.normal(size=3) * 0.3,
+        "neck": scale * rng.normal(size=3) * 0.2,
+        "eyes": scale * rng.normal(size=6) * 0.2,
+        "rotation": rng.normal(size=3) * 0.5,
+        "translation": rng.normal(size=3) * 0.2,
+    }
 
 
 @pytest.mark.parametrize("name", sorted(ABLATIONS))
@@ -77,13 +83,19 @@ def test_global_rotation_and_translation_move_the_head_rigidly():
     with torch.no_grad():
         still = avatar(1.0, **codes)
         moved = avatar(1.0, rotation=rot, translation=trans, **codes)
-    posed = flame_forward(avatar.mesh, shape=avatar.identity_shape.numpy().astype(float),
-                          rotation=rot, translation=trans, **codes)[0]
+    posed = flame_forward(
+        avatar.mesh,
+        shape=avatar.identity_shape.numpy().astype(float),
+        rotation=rot,
+        translation=trans,
+        **codes,
+    )[0]
     table = avatar.raster.table(moved.resolution)
     surface = position_map(posed, avatar.mesh.faces[table.face], table.bary)
     r = axis_angle_to_matrix(rot)
-    np.testing.assert_allclose(moved.means.numpy(), surface + still.offsets.numpy() @ r.T,
-                               atol=2e-6)
+    np.testing.assert_allclose(
+        moved.means.numpy(), surface + still.offsets.numpy() @ r.T, atol=2e-6
+    )
     w, x, y, z = axis_angle_to_quaternion(rot)
     left = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
     np.testing.assert_allclose(moved.quats.numpy(), still.quats.numpy() @ left.T, atol=1e-6)

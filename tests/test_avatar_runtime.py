@@ -74,8 +74,9 @@ def test_runtime_never_imports_torch(saved):
         print("torch modules:", loaded)
         sys.exit(1 if loaded else 0)
     """)
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                            timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stdout + result.stderr
 
 

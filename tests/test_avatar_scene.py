@@ -42,41 +42,50 @@ def test_codes_from_rig_invert_the_import(model):
     translation included (the expression's root-joint shift taken out again)."""
     rng = np.random.default_rng(3)
     seq = demo_sequence(frames=5)
-    seq = replace(seq, translation=rng.normal(scale=0.05, size=(5, 3)),
-                  rotation=rng.normal(scale=0.4, size=(5, 3)))
+    seq = replace(
+        seq,
+        translation=rng.normal(scale=0.05, size=(5, 3)),
+        rotation=rng.normal(scale=0.4, size=(5, 3)),
+    )
     seq = seq.fit_to_model(model)
     rig = rig_animation(model, seq)
     dirs = expression_joint_dirs(model, model.n_expr)
-    assert np.abs(dirs[:rig.expr.shape[1], 0]).max() > 1e-5  # expressions do move the root
+    assert np.abs(dirs[: rig.expr.shape[1], 0]).max() > 1e-5  # expressions do move the root
     for t in range(len(seq)):
-        codes = codes_from_rig(quaternion_to_matrix(rig.bone_quats[t]), rig.bone_locs[t, 0],
-                               rig.expr[t], dirs)
+        codes = codes_from_rig(
+            quaternion_to_matrix(rig.bone_quats[t]), rig.bone_locs[t, 0], rig.expr[t], dirs
+        )
         for name in ("rotation", "neck", "jaw", "eyes", "translation"):
             np.testing.assert_allclose(getattr(codes, name), getattr(seq, name)[t], atol=1e-9)
-        np.testing.assert_allclose(codes.expr, seq.expr[t, :rig.expr.shape[1]])
+        np.testing.assert_allclose(codes.expr, seq.expr[t, : rig.expr.shape[1]])
 
 
 def _gaussians(n, rng, opacity_logits=None):
-    return Gaussians(means=rng.normal(size=(n, 3)), log_scales=rng.normal(size=(n, 3)) - 5,
-                     quats=np.tile([1.0, 0, 0, 0], (n, 1)),
-                     opacity_logits=rng.normal(size=n) if opacity_logits is None
-                     else opacity_logits, sh=rng.normal(size=(n, 16, 3)),
-                     offsets=np.zeros((n, 3)), uv_texel=np.arange(n), resolution=64)
+    return Gaussians(
+        means=rng.normal(size=(n, 3)),
+        log_scales=rng.normal(size=(n, 3)) - 5,
+        quats=np.tile([1.0, 0, 0, 0], (n, 1)),
+        opacity_logits=rng.normal(size=n) if opacity_logits is None else opacity_logits,
+        sh=rng.normal(size=(n, 16, 3)),
+        offsets=np.zeros((n, 3)),
+        uv_texel=np.arange(n),
+        resolution=64,
+    )
 
 
 def test_splat_frame_leaves_out_invisible_gaussians():
     rng = np.random.default_rng(0)
     logit = np.log(MIN_OPACITY / (1 - MIN_OPACITY))
-    frame = SplatFrame.from_gaussians(_gaussians(4, rng, np.array([logit - 1e-3, logit + 1e-3,
-                                                                   5.0, -20.0])))
+    frame = SplatFrame.from_gaussians(
+        _gaussians(4, rng, np.array([logit - 1e-3, logit + 1e-3, 5.0, -20.0]))
+    )
     assert len(frame) == 2 and frame.opacity_logits.dtype == np.float32
     assert frame.resolution == 64 and frame.sh.shape == (2, 16, 3)
 
 
 def test_memory_cache_drops_least_recently_used_by_bytes():
     rng = np.random.default_rng(1)
-    frames = {k: SplatFrame.from_gaussians(_gaussians(100, rng, np.full(100, 3.0)))
-              for k in "abc"}
+    frames = {k: SplatFrame.from_gaussians(_gaussians(100, rng, np.full(100, 3.0))) for k in "abc"}
     cache = MemoryCache(max_bytes=2 * frames["a"].nbytes)
     cache.put("a", frames["a"])
     cache.put("b", frames["b"])
@@ -102,8 +111,12 @@ def test_disk_cache_round_trip_and_damaged_files(tmp_path):
 
 
 def test_frame_key_names_avatar_codes_and_lod():
-    keys = {frame_key("avatar", "codes", 0.5), frame_key("avatar", "codes", 0.25),
-            frame_key("avatar", "other", 0.5), frame_key("other", "codes", 0.5)}
+    keys = {
+        frame_key("avatar", "codes", 0.5),
+        frame_key("avatar", "codes", 0.25),
+        frame_key("avatar", "other", 0.5),
+        frame_key("other", "codes", 0.5),
+    }
     assert len(keys) == 4 and frame_key("avatar", "codes", 0.5) in keys
 
 
@@ -124,15 +137,20 @@ def test_frame_selection():
 def _checkpoint(model_id="m", n_faces=4, n_expr=10):
     uv = np.random.default_rng(0).random((6, 2))
     faces = np.arange(3 * n_faces).reshape(n_faces, 3) % 6
-    return AvatarCheckpoint(config=AvatarConfig(n_expr=n_expr), model_id=model_id, uv=uv,
-                            uv_faces=faces, identity_shape=np.zeros(5), params={})
+    return AvatarCheckpoint(
+        config=AvatarConfig(n_expr=n_expr),
+        model_id=model_id,
+        uv=uv,
+        uv_faces=faces,
+        identity_shape=np.zeros(5),
+        params={},
+    )
 
 
 def test_check_head_names_what_does_not_fit():
     ckpt = _checkpoint()
     loops = ckpt.uv[ckpt.uv_faces].reshape(-1, 2)
-    good = HeadFacts(model_id="m+teeth", n_faces=4, identity=np.zeros(5), n_expr=10,
-                     loop_uvs=loops)
+    good = HeadFacts(model_id="m+teeth", n_faces=4, identity=np.zeros(5), n_expr=10, loop_uvs=loops)
     assert check_head(ckpt, good, "m").errors == []
     assert check_head(ckpt, good, "m").warnings == []
     wrong = check_head(ckpt, replace(good, model_id="flame2023+teeth"), "m").errors
@@ -150,8 +168,7 @@ def test_point_attributes():
     frame = SplatFrame.from_gaussians(_gaussians(20, rng, np.linspace(-3, 3, 20)))
     attrs = point_attributes(frame)
     np.testing.assert_allclose(attrs["scale"], np.exp(frame.log_scales), rtol=1e-6)
-    np.testing.assert_allclose(attrs["opacity"], 1 / (1 + np.exp(-frame.opacity_logits)),
-                               rtol=1e-6)
+    np.testing.assert_allclose(attrs["opacity"], 1 / (1 + np.exp(-frame.opacity_logits)), rtol=1e-6)
     dc = np.maximum(0.5 + SH_C0 * frame.sh[:, 0], 0)
     np.testing.assert_allclose(attrs["colour"][:, :3], srgb_to_linear(dc), rtol=1e-5)
     assert "colour_view" not in attrs and np.all(attrs["colour"][:, 3] == 1)
@@ -163,4 +180,5 @@ def test_point_attributes():
     np.testing.assert_allclose(flat, attrs["colour"], atol=1e-6)
     assert np.abs(seen - flat).max() > 1e-3
     assert srgb_to_linear(np.array([0.0, 0.04045, 1.0, 2.0])).tolist() == pytest.approx(
-        [0.0, 0.04045 / 12.92, 1.0, 1.0])
+        [0.0, 0.04045 / 12.92, 1.0, 1.0]
+    )

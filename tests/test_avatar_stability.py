@@ -17,11 +17,24 @@ def _extreme_codes():
     rng = np.random.default_rng(0)
     out = []
     for axis in np.eye(3):
-        out.append({"expr": 10 * rng.choice([-1.0, 1.0], 100), "jaw": np.pi * axis,
-                     "neck": np.pi * axis, "eyes": np.tile(np.pi * axis, 2),
-                     "rotation": np.pi * axis, "translation": [0.0, 0.0, 1.0]})
-    out.append({"expr": np.full(100, -10.0), "jaw": [-np.pi, 0, 0], "neck": [0, -np.pi, 0],
-                "eyes": rng.uniform(-np.pi, np.pi, 6)})
+        out.append(
+            {
+                "expr": 10 * rng.choice([-1.0, 1.0], 100),
+                "jaw": np.pi * axis,
+                "neck": np.pi * axis,
+                "eyes": np.tile(np.pi * axis, 2),
+                "rotation": np.pi * axis,
+                "translation": [0.0, 0.0, 1.0],
+            }
+        )
+    out.append(
+        {
+            "expr": np.full(100, -10.0),
+            "jaw": [-np.pi, 0, 0],
+            "neck": [0, -np.pi, 0],
+            "eyes": rng.uniform(-np.pi, np.pi, 6),
+        }
+    )
     return out
 
 

@@ -20,7 +20,7 @@ from archhead_addon.train.config import TrainConfig
 
 def _table(text: str, header: str) -> list[list[str]]:
     """The rows (cells) of the Markdown table whose header line starts with `header`."""
-    lines = takewhile(lambda line: line.startswith("|"), text[text.index(header):].splitlines())
+    lines = takewhile(lambda line: line.startswith("|"), text[text.index(header) :].splitlines())
     return [[c.strip() for c in line.strip("|").split("|")] for line in list(lines)[2:]]
 
 
@@ -29,22 +29,52 @@ def test_variant_config_keeps_the_budget_and_replaces_the_levels():
     for levels in VARIANTS.values():
         config = TrainConfig.from_dict(variant_config(base, levels, 12))
         assert config.total_steps == 12 and config.stage1_steps == 9  # 24 : 8 of the base
-        assert config.avatar_config(1).levels == (base.avatar_config(1).levels
-                                                  if levels is None else tuple(levels))
+        assert config.avatar_config(1).levels == (
+            base.avatar_config(1).levels if levels is None else tuple(levels)
+        )
 
 
 def test_report_has_a_finite_row_per_lod(tmp_path_factory, tmp_path, capsys):
     subject = tiny_subject(tmp_path_factory)
     torch.manual_seed(0)
-    config = AvatarConfig(s_max=32, s_min=8, levels=(32, 16, 8), feature_dim=8, hidden=16,
-                          colour_hidden=16, mapping_hidden=16)
+    config = AvatarConfig(
+        s_max=32,
+        s_min=8,
+        levels=(32, 16, 8),
+        feature_dim=8,
+        hidden=16,
+        colour_hidden=16,
+        mapping_hidden=16,
+    )
     avatar = tmp_path / "avatar.npz"
     save_avatar(avatar, ArchHeadAvatar.create(load_model(), config=config))
     out, docs = tmp_path / "report", tmp_path / "docs"
-    assert main(["--avatar", str(avatar), "--data", str(subject), "--out", str(out),
-                 "--docs", str(docs), "--resolution", str(SIZE), "--step", "0.25",
-                 "--repeats", "1", "--ablations", "--steps", "2",
-                 "--ablation-config", str(write_config(tmp_path / "tiny.json"))]) == 0
+    assert (
+        main(
+            [
+                "--avatar",
+                str(avatar),
+                "--data",
+                str(subject),
+                "--out",
+                str(out),
+                "--docs",
+                str(docs),
+                "--resolution",
+                str(SIZE),
+                "--step",
+                "0.25",
+                "--repeats",
+                "1",
+                "--ablations",
+                "--steps",
+                "2",
+                "--ablation-config",
+                str(write_config(tmp_path / "tiny.json")),
+            ]
+        )
+        == 0
+    )
     assert "report:" in capsys.readouterr().out
     text = (out / "report.md").read_text()
     assert (docs / DOCS_REPORT).read_text() == text

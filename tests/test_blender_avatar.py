@@ -20,6 +20,8 @@ from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.camera import FLAME_TO_BLENDER
 from archhead_addon.export.ply import read_ply, rows_to_gaussians
 
+pytestmark = pytest.mark.blender
+
 SEQ_CODES = ("expr", "jaw", "neck", "eyes", "rotation", "translation")
 
 
@@ -44,15 +46,15 @@ def avatar(scene_setup):
 
 
 def _batch(setup):
-    return importlib.import_module(f"{setup['addon'].__name__}.operators.batch_render")
+    return importlib.import_module("archhead_blender.batch_render")
 
 
 def _session(setup):
-    return setup["addon"].operators.avatar_session.session(setup["obj"])
+    return importlib.import_module("archhead_blender.avatar_session").session(setup["obj"])
 
 
 def _points(setup):
-    return setup["addon"].operators.point_instances.read_points(setup["obj"])
+    return importlib.import_module("archhead_blender.point_instances").read_points(setup["obj"])
 
 
 def _expected(setup, frame: int, lod: float) -> SplatFrame:
@@ -90,7 +92,8 @@ def test_shape_key_edit_drives_the_avatar(avatar):
     block = head.data.shape_keys.key_blocks["expr_000"]
     anim = head.data.shape_keys.animation_data
     curve = action_get_channelbag_for_slot(anim.action, anim.action_slot).fcurves.find(
-        'key_blocks["expr_000"].value')
+        'key_blocks["expr_000"].value'
+    )
     before = _points(avatar)["position"]
     curve.mute = True  # the key's animation off, a hand-set value on
     try:
@@ -129,7 +132,7 @@ def test_lod_changes_follow_the_table(avatar):
 
 
 def test_decode_frames_hold_and_disk_cache(avatar, tmp_path):
-    addon, obj = avatar["addon"], avatar["obj"]
+    obj = avatar["obj"]
     settings = obj.archhead_avatar
     settings.decode_frames, settings.stride = "STRIDE", 3
     settings.disk_cache, settings.cache_dir = True, str(tmp_path / "cache")
@@ -140,19 +143,22 @@ def test_decode_frames_hold_and_disk_cache(avatar, tmp_path):
         assert len(list((tmp_path / "cache").glob("*.npz"))) == 2
         settings.between = "HOLD"
         bpy.context.scene.frame_set(3)  # holds frame 1
-        np.testing.assert_allclose(_points(avatar)["position"], _expected(avatar, 1, 0.0).means,
-                                   atol=2e-5)
+        np.testing.assert_allclose(
+            _points(avatar)["position"], _expected(avatar, 1, 0.0).means, atol=2e-5
+        )
         settings.between = "LIVE"
         bpy.context.view_layer.update()
-        np.testing.assert_allclose(_points(avatar)["position"], _expected(avatar, 3, 0.0).means,
-                                   atol=2e-5)
+        np.testing.assert_allclose(
+            _points(avatar)["position"], _expected(avatar, 3, 0.0).means, atol=2e-5
+        )
         # a new session (a reopened file, another machine) reads frames from the disk cache
-        addon.operators.avatar_session.drop_sessions()
+        importlib.import_module("archhead_blender.state").reset()
         bpy.context.scene.frame_set(4)
         runtime = _session(avatar).runtime
         assert runtime.level.cache_info().misses == 0  # nothing was decoded
-        np.testing.assert_allclose(_points(avatar)["position"], _expected(avatar, 4, 0.0).means,
-                                   atol=2e-5)
+        np.testing.assert_allclose(
+            _points(avatar)["position"], _expected(avatar, 4, 0.0).means, atol=2e-5
+        )
     finally:
         settings.disk_cache, settings.between = False, "LIVE"
 
@@ -222,8 +228,9 @@ def test_ply_export_round_trip(avatar, tmp_path):
     got = rows_to_gaussians(read_ply(path))
     for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
         np.testing.assert_allclose(got[name], getattr(want, name), atol=2e-5)
-    assert bpy.ops.archhead.export_ply(filepath=str(tmp_path / "w_##.ply"), frames="CUSTOM",
-                                       custom_frames="2-3", space="WORLD") == {"FINISHED"}
+    assert bpy.ops.archhead.export_ply(
+        filepath=str(tmp_path / "w_##.ply"), frames="CUSTOM", custom_frames="2-3", space="WORLD"
+    ) == {"FINISHED"}
     world = rows_to_gaussians(read_ply(tmp_path / "w_02.ply"))
     flame = _expected(avatar, 2, 0.0).means
     np.testing.assert_allclose(world["means"], flame @ FLAME_TO_BLENDER[:3, :3].T, atol=2e-5)
@@ -241,7 +248,7 @@ def test_ply_export_round_trip(avatar, tmp_path):
 
 
 def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
-    """`python operators/script_batch.py scene.blend --exact ...` renders with the kernel;
+    """`python scripts/batch_render.py scene.blend --exact ...` renders with the kernel;
     its image matches Cycles' render of the point instances."""
     scene = bpy.context.scene
     avatar["obj"].archhead_avatar.view_dependent = True  # the splat evaluates the full SH
@@ -253,14 +260,27 @@ def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
     out = tmp_path / "exact"
-    result = subprocess.run([sys.executable, str(REPO_ROOT / "operators/script_batch.py"),
-                             str(blend), "--frames", "2", "--lod", "0.5", "--exact", "--out",
-                             str(out)], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [
+            sys.executable,
+            str(REPO_ROOT / "scripts/batch_render.py"),
+            str(blend),
+            "--frames",
+            "2",
+            "--lod",
+            "0.5",
+            "--exact",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     exact = load_rgba(out / "frame_0002.png")
     assert exact[..., 3].max() > 0.99 and exact[..., 3].min() == 0.0
-    cycles_files = _batch(avatar).render_frames(
-        bpy.context, [2], tmp_path / "cycles", lod=0.5)
+    cycles_files = _batch(avatar).render_frames(bpy.context, [2], tmp_path / "cycles", lod=0.5)
     cycles = load_rgba(cycles_files[0])
     psnr = 10 * np.log10(1.0 / np.mean((_over_black(cycles) - _over_black(exact)) ** 2))
     print(f"PSNR Cycles / exact splat: {psnr:.1f} dB")
@@ -300,6 +320,5 @@ def test_matrix_world_follows_the_rig(avatar):
     saved = rig.matrix_world.copy()
     rig.matrix_world = Matrix.Translation((1.0, 2.0, 3.0)) @ saved
     bpy.context.view_layer.update()
-    np.testing.assert_allclose(np.array(avatar["obj"].matrix_world)[:3, 3], [1, 2, 3],
-                               atol=1e-6)
+    np.testing.assert_allclose(np.array(avatar["obj"].matrix_world)[:3, 3], [1, 2, 3], atol=1e-6)
     rig.matrix_world = saved

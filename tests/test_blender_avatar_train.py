@@ -14,8 +14,13 @@ from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.sequences import read_sequence, write_canonical
 from archhead_addon.synthetic.png import encode_png
 
-TINY = {"lods_per_step": 2, "checkpoint_every": 1000,
-        "avatar": {"s_max": 64, "s_min": 32, "levels": [64, 32], "feature_dim": 16}}
+pytestmark = [pytest.mark.blender, pytest.mark.slow]
+
+TINY = {
+    "lods_per_step": 2,
+    "checkpoint_every": 1000,
+    "avatar": {"s_max": 64, "s_min": 32, "levels": [64, 32], "feature_dim": 16},
+}
 
 
 @pytest.fixture(scope="module")
@@ -25,12 +30,13 @@ def setup(tmp_path_factory):
     video = folder / "video"  # frames and tracking apart: the operator assembles the data
     video.mkdir()
     for t in range(len(seq)):
-        (video / f"img_{t}.png").write_bytes(encode_png(np.full((32, 32, 3), 60 + 50 * t,
-                                                                np.uint8)))
+        (video / f"img_{t}.png").write_bytes(
+            encode_png(np.full((32, 32, 3), 60 + 50 * t, np.uint8))
+        )
     write_canonical(seq, folder / "track.npz")
     config = folder / "tiny.json"
     config.write_text(json.dumps(TINY))
-    module = importlib.import_module(f"{addon.__name__}.operators.train_operator")
+    module = importlib.import_module("archhead_blender.training")
     return {"folder": folder, "head": head, "video": video, "config": config, "ops": module}
 
 
@@ -38,9 +44,14 @@ def test_training_operator_runs_and_loads_the_avatar(setup):
     out = setup["folder"] / "run"
     bpy.context.view_layer.objects.active = setup["head"]
     result = bpy.ops.archhead.train_avatar(
-        frames_dir=str(setup["video"]), tracking=str(setup["folder"] / "track.npz"),
-        out_dir=str(out), resolution=32, stage1_steps=2, stage2_steps=1,
-        base_config=str(setup["config"]))
+        frames_dir=str(setup["video"]),
+        tracking=str(setup["folder"] / "track.npz"),
+        out_dir=str(out),
+        resolution=32,
+        stage1_steps=2,
+        stage2_steps=1,
+        base_config=str(setup["config"]),
+    )
     assert result == {"FINISHED"}
     ckpt = read_checkpoint(out / "avatar.npz")
     assert ckpt.config.s_max == 64 and ckpt.config.levels == (64, 32)
@@ -61,8 +72,14 @@ def test_cancel_stops_cleanly_with_a_checkpoint(setup):
     ops = setup["ops"]
     out = setup["folder"] / "cancelled"
     settings = {**TINY, "resolution": 32, "stage1_steps": 200, "stage2_steps": 0}
-    run = ops.start_training(bpy.context, setup["video"], setup["folder"] / "track.npz", out,
-                             settings, head_name=setup["head"].name)
+    run = ops.start_training(
+        bpy.context,
+        setup["video"],
+        setup["folder"] / "track.npz",
+        out,
+        settings,
+        head_name=setup["head"].name,
+    )
     assert ops.current_run() is run
     deadline = time.monotonic() + 120
     while run.step < 1:  # what the modal operator's timer does: poll, never wait

@@ -19,6 +19,8 @@ from archhead_addon.sequences.canonical import write_canonical
 from archhead_addon.sequences.demo import demo_sequence
 from archhead_addon.sequences.sequence import Sequence
 
+pytestmark = pytest.mark.blender
+
 WIDTH, HEIGHT = 640, 480
 
 
@@ -39,10 +41,21 @@ def _extreme_sequence(model, n_frames=7, seed=0):
     w2c[:, 2, 3] = 0.8 + 0.05 * np.arange(t)
     w2c[:, 0, 3] = 0.01 * np.arange(t)
     return Sequence(
-        shape=np.tile(rng.normal(size=model.n_shape), (t, 1)), expr=expr, jaw=jaw, neck=neck,
-        eyes=eyes, rotation=rot, translation=rng.normal(scale=0.02, size=(t, 3)), fps=30.0,
-        frame_ids=np.arange(t), source="test", format="canonical",
-        K=np.tile(K, (t, 1, 1)), w2c=w2c, image_size=(HEIGHT, WIDTH))
+        shape=np.tile(rng.normal(size=model.n_shape), (t, 1)),
+        expr=expr,
+        jaw=jaw,
+        neck=neck,
+        eyes=eyes,
+        rotation=rot,
+        translation=rng.normal(scale=0.02, size=(t, 3)),
+        fps=30.0,
+        frame_ids=np.arange(t),
+        source="test",
+        format="canonical",
+        K=np.tile(K, (t, 1, 1)),
+        w2c=w2c,
+        image_size=(HEIGHT, WIDTH),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -74,8 +87,10 @@ def test_evaluated_mesh_equals_flame_forward(imported):
     assert len(head.data.vertices) == model.n_verts
     worst = 0.0
     for i in range(len(seq)):
-        codes = {k: getattr(seq, k)[i] for k in ("shape", "expr", "jaw", "neck", "eyes",
-                                                 "rotation", "translation")}
+        codes = {
+            k: getattr(seq, k)[i]
+            for k in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
+        }
         want = forward(model, **codes)[0]
         got = _evaluated_vertices(head, i + 1)
         worst = max(worst, np.abs(got - want).max())
@@ -89,8 +104,13 @@ def test_camera_projects_like_k_r_t(imported):
     cam = scene.camera
     assert (scene.render.resolution_x, scene.render.resolution_y) == (WIDTH, HEIGHT)
     for i in (0, 3, 6):
-        verts = forward(model, **{k: getattr(seq, k)[i] for k in (
-            "shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")})[0][::50]
+        verts = forward(
+            model,
+            **{
+                k: getattr(seq, k)[i]
+                for k in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
+            },
+        )[0][::50]
         scene.frame_set(i + 1)
         want = project(verts, seq.K[i], seq.w2c[i])
         world = verts @ FLAME_TO_BLENDER[:3, :3].T
@@ -124,27 +144,43 @@ def test_script_imports_and_saves_blend(tmp_path):
     seq_path = tmp_path / "clip.npz"
     write_canonical(demo_sequence(frames=8), seq_path)
     out = tmp_path / "clip.blend"
-    proc = subprocess.run([sys.executable, str(REPO_ROOT / "operators/script_import.py"),
-                           str(seq_path), str(out), "--stride", "2", "--expressions", "20"],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(REPO_ROOT / "scripts/import_sequence.py"),
+            str(seq_path),
+            str(out),
+            "--stride",
+            "2",
+            "--expressions",
+            "20",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert out.stat().st_size > 100_000
     bpy.ops.wm.open_mainfile(filepath=str(out))
     head = bpy.data.objects["clip"]
     assert (bpy.context.scene.frame_start, bpy.context.scene.frame_end) == (1, 7)  # 8 / stride 2
     assert head.data.shape_keys.key_blocks["expr_019"] and "expr_020" not in (
-        head.data.shape_keys.key_blocks)
+        head.data.shape_keys.key_blocks
+    )
 
 
 def test_keyframed_correctives_equally_exact(imported, tmp_path):
     _, model, seq, _ = imported
     path = tmp_path / "keyed.npz"
     write_canonical(seq, path)
-    assert bpy.ops.archhead.import_sequence(filepath=str(path), pose_correctives="KEYFRAMES",
-                                            use_camera=False) == {"FINISHED"}
+    assert bpy.ops.archhead.import_sequence(
+        filepath=str(path), pose_correctives="KEYFRAMES", use_camera=False
+    ) == {"FINISHED"}
     head = bpy.data.objects["keyed"]
     assert not head.data.shape_keys.animation_data.drivers
     for i in (3, 4, 6):  # jaw, neck, near-pi global rotation
-        codes = {k: getattr(seq, k)[i] for k in ("shape", "expr", "jaw", "neck", "eyes",
-                                                 "rotation", "translation")}
+        codes = {
+            k: getattr(seq, k)[i]
+            for k in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
+        }
         assert np.abs(_evaluated_vertices(head, i + 1) - forward(model, **codes)[0]).max() <= 1e-5

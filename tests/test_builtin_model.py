@@ -100,8 +100,17 @@ def test_lip_rings(model):
     assert v[up[0], 0] > 0.02 and v[up[-1], 0] < -0.02  # subject's left corner first
     assert (np.diff(v[up, 0]) < 0).all() and (np.diff(v[low, 0]) < 0).all()
     assert np.allclose(v[up], v[low], atol=1e-6)  # the mouth is closed at rest
-    edges = set(map(tuple, np.sort(np.concatenate(
-        [model.faces[:, [0, 1]], model.faces[:, [1, 2]], model.faces[:, [2, 0]]]), axis=1)))
+    edges = set(
+        map(
+            tuple,
+            np.sort(
+                np.concatenate(
+                    [model.faces[:, [0, 1]], model.faces[:, [1, 2]], model.faces[:, [2, 0]]]
+                ),
+                axis=1,
+            ),
+        )
+    )
     for ring in (up, low):
         assert all(tuple(sorted(e)) in edges for e in zip(ring[:-1], ring[1:], strict=True))
     assert (model.vertex_parts[up] == PART_MOUTH).all()
@@ -135,8 +144,8 @@ def test_uv_layout(model):
 
 
 def test_bases_decay_and_eyeballs(model):
-    ident = model.shapedirs[:, :, :model.n_shape]
-    expr = model.shapedirs[:, :, model.n_shape:]
+    ident = model.shapedirs[:, :, : model.n_shape]
+    expr = model.shapedirs[:, :, model.n_shape :]
     for basis in (ident, expr):
         rms = np.sqrt((basis**2).sum(1).mean(0))
         blocks = [rms[:10].mean(), rms[10:50].mean(), rms[50:].mean()]
@@ -176,8 +185,13 @@ def test_blink_closes_the_lids(model):
         dist = np.linalg.norm(v0 - centre, axis=1)
         # lid skin in a vertical strip through the pupil (the margins inside the eyeball
         # and the eyeball itself excluded)
-        lids = ((model.vertex_parts == PART_EYE) & (w[:, joint] == 0) & (dist > 0.0125)
-                & (dist < 0.02) & (np.abs(v0[:, 0] - pupil[0]) < 0.002))
+        lids = (
+            (model.vertex_parts == PART_EYE)
+            & (w[:, joint] == 0)
+            & (dist > 0.0125)
+            & (dist < 0.02)
+            & (np.abs(v0[:, 0] - pupil[0]) < 0.002)
+        )
         upper, lower = lids & (v0[:, 1] > pupil[1]), lids & (v0[:, 1] < pupil[1])
         code = np.eye(model.n_expr)[EXPRESSION_NAMES.index(name)]
         assert _lid_gap(v0, upper, lower) > 0.007  # open at rest
@@ -214,8 +228,9 @@ def test_render_smoke(model, tmp_path):
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     out = tmp_path / "tiny.png"
-    script.render_pose(model, script.POSES["builtin_smile"], out, resolution=32, samples=1,
-                       transparent=True)
+    script.render_pose(
+        model, script.POSES["builtin_smile"], out, resolution=32, samples=1, transparent=True
+    )
     alpha = np.asarray(Image.open(out))[..., 3]
     assert alpha[12:20, 12:20].min() > 200  # the head covers the middle of the frame
     assert alpha[0, 0] == 0

@@ -77,8 +77,11 @@ def test_split_and_codes_follow_frame_order(tmp_path, model):
     seq = make_data(tmp_path, model, frames=10)
     train = FrameDataset(tmp_path, 40, model)
     test = FrameDataset(tmp_path, 40, model, split="test")
-    assert len(train) == 9 and len(test) == 1 and len(FrameDataset(tmp_path, 40, model,
-                                                                    split="all")) == 10
+    assert (
+        len(train) == 9
+        and len(test) == 1
+        and len(FrameDataset(tmp_path, 40, model, split="all")) == 10
+    )
     np.testing.assert_array_equal(train.frame_ids, np.arange(9))
     item = test[0]
     assert item["index"] == 9 and item["frame_id"] == 9
@@ -105,22 +108,24 @@ def test_resized_frames_project_with_the_scaled_camera(tmp_path, model, resoluti
     data = FrameDataset(tmp_path, resolution, model, split="all")
     for t in range(3):
         item = data[t]
-        expected = project(posed(model, seq, t).mean(0, keepdims=True), item["K"],
-                           item["w2c"])[0]
+        expected = project(posed(model, seq, t).mean(0, keepdims=True), item["K"], item["w2c"])[0]
         spot = item["image"][..., 0]
         assert np.abs(centroid(spot) - expected).max() < 0.05
-        np.testing.assert_allclose(item["K"][[0, 1], [0, 1]], seq.K[t][[0, 1], [0, 1]]
-                                   * [data.size[1] / 80, data.size[0] / 60], rtol=1e-6)
+        np.testing.assert_allclose(
+            item["K"][[0, 1], [0, 1]],
+            seq.K[t][[0, 1], [0, 1]] * [data.size[1] / 80, data.size[0] / 60],
+            rtol=1e-6,
+        )
 
 
 def test_tracked_at_another_size_scales_from_that_size(tmp_path, model):
     seq = make_data(tmp_path, model, frames=2, size=(60, 80))
-    tracked = dataclasses.replace(seq, K=seq.K * np.array([2, 2, 1])[:, None],
-                                  image_size=(120, 160))  # tracked on 2x frames
+    tracked = dataclasses.replace(
+        seq, K=seq.K * np.array([2, 2, 1])[:, None], image_size=(120, 160)
+    )  # tracked on 2x frames
     write_canonical(tracked, tmp_path / "tracking.npz")
     data = FrameDataset(tmp_path, 40, model, split="all")
-    np.testing.assert_allclose(data[0]["K"], seq.K[0] * np.array([0.5, 0.5, 1])[:, None],
-                               rtol=1e-6)
+    np.testing.assert_allclose(data[0]["K"], seq.K[0] * np.array([0.5, 0.5, 1])[:, None], rtol=1e-6)
 
 
 def test_masks_composite_over_the_background(tmp_path, model):
@@ -231,12 +236,15 @@ def test_rasterizer_depth_order_and_pixel_centres():
 
 
 def test_importing_the_dataset_loads_no_torch():
-    code = ("import sys, archhead_addon.train.dataset, archhead_addon.train; "
-            "assert 'torch' not in sys.modules, 'torch imported'")
+    code = (
+        "import sys, archhead_addon.train.dataset, archhead_addon.train; "
+        "assert 'torch' not in sys.modules, 'torch imported'"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 # ---------------------------------------------------------------- bad input
+
 
 def _raises(path, problem, *args, **kwargs):
     with pytest.raises(InputError, match="^" + re.escape(f"{path}: ") + problem):
@@ -246,22 +254,37 @@ def _raises(path, problem, *args, **kwargs):
 def test_missing_frames_are_named(tmp_path, model):
     make_data(tmp_path, model, frames=6)
     (tmp_path / "frames" / "00003.png").unlink()
-    _raises(tmp_path / "frames", r"5 frames for 6 tracked frames .*missing frame numbers 3$",
-            tmp_path, 32, model)
+    _raises(
+        tmp_path / "frames",
+        r"5 frames for 6 tracked frames .*missing frame numbers 3$",
+        tmp_path,
+        32,
+        model,
+    )
 
 
 def test_more_frames_than_tracking(tmp_path, model):
     make_data(tmp_path, model, frames=4)
     write_canonical(demo_sequence(3, image_size=(60, 80)), tmp_path / "tracking.npz")
-    _raises(tmp_path / "frames", r"4 frames but the tracking .* has only 3: frames 00003.png",
-            tmp_path, 32, model)
+    _raises(
+        tmp_path / "frames",
+        r"4 frames but the tracking .* has only 3: frames 00003.png",
+        tmp_path,
+        32,
+        model,
+    )
 
 
 def test_frames_of_another_size(tmp_path, model):
     make_data(tmp_path, model, frames=4)
     write_png(tmp_path / "frames" / "00002.png", np.zeros((60, 81)))
-    _raises(tmp_path / "frames" / "00002.png", r"81x60 pixels, but 00000.png is 80x60",
-            tmp_path, 32, model)
+    _raises(
+        tmp_path / "frames" / "00002.png",
+        r"81x60 pixels, but 00000.png is 80x60",
+        tmp_path,
+        32,
+        model,
+    )
 
 
 def test_unreadable_frame(tmp_path, model):
@@ -282,8 +305,13 @@ def test_truncated_frame_fails_when_loaded(tmp_path, model):
 def test_mask_missing_or_of_another_size(tmp_path, model):
     make_data(tmp_path, model, frames=4, masks=True)
     write_png(tmp_path / "masks" / "00002.png", np.ones((30, 40)))
-    _raises(tmp_path / "masks" / "00002.png", r"40x30 pixels, but the frames are 80x60",
-            tmp_path, 32, model)
+    _raises(
+        tmp_path / "masks" / "00002.png",
+        r"40x30 pixels, but the frames are 80x60",
+        tmp_path,
+        32,
+        model,
+    )
     (tmp_path / "masks" / "00002.png").unlink()
     _raises(tmp_path / "masks", r"no mask for frames 00002.png", tmp_path, 32, model)
 
@@ -291,7 +319,8 @@ def test_mask_missing_or_of_another_size(tmp_path, model):
 def test_mixed_image_types(tmp_path, model):
     make_data(tmp_path, model, frames=3)
     Image.open(tmp_path / "frames" / "00002.png").convert("RGB").save(
-        tmp_path / "frames" / "00002.jpg")
+        tmp_path / "frames" / "00002.jpg"
+    )
     (tmp_path / "frames" / "00002.png").unlink()
     _raises(tmp_path / "frames", r"mixed image types \(.jpg, .png\)", tmp_path, 32, model)
 
@@ -299,8 +328,7 @@ def test_mixed_image_types(tmp_path, model):
 def test_tracking_missing_or_without_camera(tmp_path, model):
     seq = make_data(tmp_path, model, frames=3)
     write_canonical(dataclasses.replace(seq, K=None, w2c=None), tmp_path / "tracking.npz")
-    _raises(tmp_path / "tracking.npz", "key 'K': the tracking has no camera", tmp_path, 32,
-            model)
+    _raises(tmp_path / "tracking.npz", "key 'K': the tracking has no camera", tmp_path, 32, model)
     (tmp_path / "tracking.npz").unlink()
     _raises(tmp_path, "no tracking.npz in this folder", tmp_path, 32, model)
     _raises(tmp_path / "nowhere", "data folder not found", tmp_path / "nowhere", 32, model)
@@ -309,8 +337,13 @@ def test_tracking_missing_or_without_camera(tmp_path, model):
 def test_tracking_camera_of_another_aspect(tmp_path, model):
     seq = make_data(tmp_path, model, frames=3, size=(60, 80))
     write_canonical(dataclasses.replace(seq, image_size=(80, 80)), tmp_path / "tracking.npz")
-    _raises(tmp_path / "frames", "frames are 80x60 pixels but the tracking's camera is for "
-            "80x80", tmp_path, 32, model)
+    _raises(
+        tmp_path / "frames",
+        "frames are 80x60 pixels but the tracking's camera is for 80x80",
+        tmp_path,
+        32,
+        model,
+    )
 
 
 def test_single_frame_has_no_test_split(tmp_path, model):

@@ -5,16 +5,36 @@ import json
 import subprocess
 import sys
 
+import pytest
 from PIL import Image
 from training_subject import REPO_ROOT, write_config
+
+pytestmark = pytest.mark.slow
 
 
 def test_demo_trains_renders_and_saves(tmp_path):
     out = tmp_path / "demo"
     config = write_config(tmp_path / "tiny.json")
-    command = [sys.executable, "-m", "archhead_addon", "demo", "--out", str(out),
-               "--frames", "4", "--size", "64", "--subject-frames", "6",
-               "--subject-size", "48", "--subject-samples", "4", "--train-config", str(config)]
+    command = [
+        sys.executable,
+        "-m",
+        "archhead_addon",
+        "demo",
+        "--out",
+        str(out),
+        "--frames",
+        "4",
+        "--size",
+        "64",
+        "--subject-frames",
+        "6",
+        "--subject-size",
+        "48",
+        "--subject-samples",
+        "4",
+        "--train-config",
+        str(config),
+    ]
     done = subprocess.run(command, cwd=REPO_ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     assert "demo done in" in done.stdout

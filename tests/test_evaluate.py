@@ -58,8 +58,11 @@ def test_ssim_of_one_window_by_hand():
     mx, my = (w * x).sum(), (w * y).sum()
     vx, vy = (w * (x - mx) ** 2).sum(), (w * (y - my) ** 2).sum()
     cxy = (w * (x - mx) * (y - my)).sum()
-    expected = ((2 * mx * my + SSIM_C1) * (2 * cxy + SSIM_C2)
-                / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2)))
+    expected = (
+        (2 * mx * my + SSIM_C1)
+        * (2 * cxy + SSIM_C2)
+        / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2))
+    )
     assert ssim(torch.from_numpy(x), torch.from_numpy(y)) == pytest.approx(expected, rel=1e-9)
     noisy = torch.from_numpy(np.clip(x + 0.1 * rng.normal(size=x.shape), 0, 1))
     assert ssim(torch.from_numpy(x), noisy) == pytest.approx(ssim(noisy, torch.from_numpy(x)))
@@ -76,8 +79,15 @@ def subject(tmp_path_factory):
 def avatar_file(tmp_path_factory):
     """A small untrained avatar, with random feature maps (so every level differs)."""
     torch.manual_seed(0)
-    config = AvatarConfig(s_max=32, s_min=8, levels=(32, 16, 8), feature_dim=8, hidden=16,
-                          colour_hidden=16, mapping_hidden=16)
+    config = AvatarConfig(
+        s_max=32,
+        s_min=8,
+        levels=(32, 16, 8),
+        feature_dim=8,
+        hidden=16,
+        colour_hidden=16,
+        mapping_hidden=16,
+    )
     path = tmp_path_factory.mktemp("avatar") / "avatar.npz"
     save_avatar(path, ArchHeadAvatar.create(load_model(), config=config))
     return path
@@ -89,14 +99,31 @@ def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path
     double = replace(seq, K=np.diag([2.0, 2.0, 1.0]) @ seq.K, image_size=(2 * SIZE, 2 * SIZE))
     write_canonical(double, tmp_path / "driver.npz")
     out = tmp_path / "eval"
-    assert main(["--avatar", str(avatar_file), "--data", str(subject), "--out", str(out),
-                 "--resolution", str(SIZE), "--drive", str(tmp_path / "driver.npz"),
-                 "--drive-frames", "8"]) == 0
+    assert (
+        main(
+            [
+                "--avatar",
+                str(avatar_file),
+                "--data",
+                str(subject),
+                "--out",
+                str(out),
+                "--resolution",
+                str(SIZE),
+                "--drive",
+                str(tmp_path / "driver.npz"),
+                "--drive-frames",
+                "8",
+            ]
+        )
+        == 0
+    )
     assert "| LOD 1 vs LOD 0 (fp32) |" in capsys.readouterr().out
 
     rows = list(csv.DictReader((out / "metrics.csv").open()))
     assert [(float(r["lod"]), r["precision"]) for r in rows] == [
-        (lod, p) for p in ("fp32", "fp16") for lod in (0.0, 0.25, 0.5, 0.75, 1.0)]
+        (lod, p) for p in ("fp32", "fp16") for lod in (0.0, 0.25, 0.5, 0.75, 1.0)
+    ]
     counts = [int(r["gaussians"]) for r in rows[:5]]
     assert counts == sorted(counts, reverse=True) and counts[-1] > 0
     for a, b in zip(rows[:5], rows[5:], strict=True):  # fp16 decodes almost alike
@@ -108,11 +135,19 @@ def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path
     model = load_model()
     test = FrameDataset(subject, SIZE, model, split="test")
     item = test[0]
-    image = render_frame(AvatarRuntime.load(avatar_file, model), 0.0, item["codes"], item["K"],
-                         item["w2c"], test.size, test.background).rgb
+    image = render_frame(
+        AvatarRuntime.load(avatar_file, model),
+        0.0,
+        item["codes"],
+        item["K"],
+        item["w2c"],
+        test.size,
+        test.background,
+    ).rgb
     rows0 = rows[0]
     assert float(rows0["psnr"]) == pytest.approx(
-        10 * math.log10(1 / np.mean((np.clip(image, 0, 1) - item["image"]) ** 2)), rel=1e-4)
+        10 * math.log10(1 / np.mean((np.clip(image, 0, 1) - item["image"]) ** 2)), rel=1e-4
+    )
 
     montage = np.asarray(Image.open(out / "lods.png"))
     assert montage.shape == (SIZE, 6 * SIZE, 3)  # truth, then five levels
@@ -127,9 +162,20 @@ def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path
 
 
 def test_bad_arguments_are_refused(subject, avatar_file, tmp_path, capsys):
-    assert main(["--avatar", str(avatar_file), "--data", str(subject), "--out",
-                 str(tmp_path)]) == 2  # no training config beside the avatar
+    assert (
+        main(["--avatar", str(avatar_file), "--data", str(subject), "--out", str(tmp_path)]) == 2
+    )  # no training config beside the avatar
     assert "--resolution" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        main(["--avatar", str(avatar_file), "--data", str(subject), "--out", str(tmp_path),
-              "--lods", "0,2"])
+        main(
+            [
+                "--avatar",
+                str(avatar_file),
+                "--data",
+                str(subject),
+                "--out",
+                str(tmp_path),
+                "--lods",
+                "0,2",
+            ]
+        )

@@ -27,8 +27,11 @@ def _fake_class(module: str, name: str, monkeypatch):
     setattr(mod, name, cls)
     parts = module.split(".")
     for i in range(1, len(parts) + 1):
-        monkeypatch.setitem(sys.modules, ".".join(parts[:i]),
-                            mod if i == len(parts) else types.ModuleType(".".join(parts[:i])))
+        monkeypatch.setitem(
+            sys.modules,
+            ".".join(parts[:i]),
+            mod if i == len(parts) else types.ModuleType(".".join(parts[:i])),
+        )
     return cls
 
 
@@ -48,8 +51,13 @@ def _flame2020_pickle(arrays, monkeypatch) -> bytes:
 def _csc_state(dense):
     rows, cols = np.nonzero(dense.T)  # column-major order of the nonzeros
     indptr = np.searchsorted(rows, np.arange(dense.shape[1] + 1))
-    return {"_shape": dense.shape, "maxprint": 50, "indices": cols.astype(np.int32),
-            "indptr": indptr.astype(np.int32), "data": dense.T[rows, cols]}
+    return {
+        "_shape": dense.shape,
+        "maxprint": 50,
+        "indices": cols.astype(np.int32),
+        "indptr": indptr.astype(np.int32),
+        "data": dense.T[rows, cols],
+    }
 
 
 def _flame2023_pickle(arrays, monkeypatch) -> bytes:
@@ -113,15 +121,25 @@ def test_malicious_pickle_refused_without_running(tmp_path, monkeypatch):
             safe_load(payload)
 
 
-@pytest.mark.parametrize("mutate, key, problem", [
-    (lambda a: a.pop("weights"), "weights", "missing"),
-    (lambda a: a.update(posedirs=a["posedirs"][:, :, :30]), "posedirs", "36 pose correctives"),
-    (lambda a: a.update(J_regressor=a["J_regressor"][:4]), "J_regressor", r"expected \(5, 40\)"),
-    (lambda a: a.update(f=a["f"] + 1000), "f", "indices below 40"),
-    (lambda a: a["v_template"].__setitem__((0, 0), np.nan), "v_template", "NaN or Inf"),
-    (lambda a: a.update(kintree_table=np.array([[4294967295, 0, 3, 1, 1], [0, 1, 2, 3, 4]])),
-     "kintree_table", "parents must come before"),
-])
+@pytest.mark.parametrize(
+    "mutate, key, problem",
+    [
+        (lambda a: a.pop("weights"), "weights", "missing"),
+        (lambda a: a.update(posedirs=a["posedirs"][:, :, :30]), "posedirs", "36 pose correctives"),
+        (
+            lambda a: a.update(J_regressor=a["J_regressor"][:4]),
+            "J_regressor",
+            r"expected \(5, 40\)",
+        ),
+        (lambda a: a.update(f=a["f"] + 1000), "f", "indices below 40"),
+        (lambda a: a["v_template"].__setitem__((0, 0), np.nan), "v_template", "NaN or Inf"),
+        (
+            lambda a: a.update(kintree_table=np.array([[4294967295, 0, 3, 1, 1], [0, 1, 2, 3, 4]])),
+            "kintree_table",
+            "parents must come before",
+        ),
+    ],
+)
 def test_bad_model_keys_named(tmp_path, arrays, mutate, key, problem):
     mutate(arrays)
     path = tmp_path / "bad.npz"

@@ -42,8 +42,10 @@ def test_identity_codes_give_template_and_joint_rotation_is_rigid():
     model = random_model()
     np.testing.assert_allclose(forward(model)[0], model.v_template, atol=1e-15)
     # a vertex fully skinned to the root moves rigidly about joint 0, then translates
-    model = model.replace(weights=np.tile([1.0, 0, 0, 0, 0], (model.n_verts, 1)),
-                          posedirs=np.zeros_like(model.posedirs))
+    model = model.replace(
+        weights=np.tile([1.0, 0, 0, 0, 0], (model.n_verts, 1)),
+        posedirs=np.zeros_like(model.posedirs),
+    )
     r, t = np.array([0.2, -0.5, 0.1]), np.array([0.01, 0.02, -0.3])
     j0 = model.j_regressor[0] @ model.v_template
     want = (model.v_template - j0) @ axis_angle_to_matrix(r).T + j0 + t
@@ -62,8 +64,9 @@ def test_pose_correctives_follow_flame_feature_order():
 
 def test_torch_gradients_flow_to_every_code():
     model = random_model()
-    codes = {k: torch.tensor(v, requires_grad=True)
-             for k, v in random_codes(model, batch=2).items()}
+    codes = {
+        k: torch.tensor(v, requires_grad=True) for k, v in random_codes(model, batch=2).items()
+    }
     FlameLayer(model, dtype=torch.float64)(**codes).square().sum().backward()
     for key, value in codes.items():
         assert value.grad is not None and torch.isfinite(value.grad).all(), key

@@ -26,10 +26,16 @@ def st_lpips():
 
 def gaussians(offsets, scales):
     n = len(offsets)
-    return Gaussians(means=torch.zeros(n, 3), log_scales=torch.log(torch.tensor(scales)),
-                     quats=torch.tensor([[1.0, 0, 0, 0]] * n), opacity_logits=torch.zeros(n),
-                     sh=torch.zeros(n, 16, 3), offsets=torch.tensor(offsets),
-                     uv_texel=torch.arange(n), resolution=4)
+    return Gaussians(
+        means=torch.zeros(n, 3),
+        log_scales=torch.log(torch.tensor(scales)),
+        quats=torch.tensor([[1.0, 0, 0, 0]] * n),
+        opacity_logits=torch.zeros(n),
+        sh=torch.zeros(n, 16, 3),
+        offsets=torch.tensor(offsets),
+        uv_texel=torch.arange(n),
+        resolution=4,
+    )
 
 
 def test_huber_is_quadratic_below_delta_and_linear_above():
@@ -39,7 +45,8 @@ def test_huber_is_quadratic_below_delta_and_linear_above():
     expected = (0.00125 + 0.025 + 0.015 + 0.0) / 4
     assert float(huber(pred, target, 0.1)) == pytest.approx(expected, rel=1e-6)
     assert float(huber(pred, target, 1.0)) == pytest.approx(
-        0.5 * (0.05**2 + 0.3**2 + 0.2**2) / 4, rel=1e-6)
+        0.5 * (0.05**2 + 0.3**2 + 0.2**2) / 4, rel=1e-6
+    )
 
 
 def test_parts_term_counts_only_masked_pixels_averaged_over_the_whole_image():
@@ -49,12 +56,14 @@ def test_parts_term_counts_only_masked_pixels_averaged_over_the_whole_image():
     pred[1, 1] = 0.9  # outside: ignored
     parts = torch.tensor([[1.0, 0.0], [0.0, 0.0]])
     assert float(parts_huber(pred, target, parts, 0.1)) == pytest.approx(
-        3 * 0.5 * 0.05**2 / 12, rel=1e-6)
+        3 * 0.5 * 0.05**2 / 12, rel=1e-6
+    )
 
 
 def test_offset_and_scale_terms_are_mean_l2_norms():
-    g = gaussians(offsets=[[3.0, 4.0, 0.0], [0.0, 0.0, 0.0]], scales=[[1.0, 2.0, 2.0],
-                                                                     [0.0, 0.0, 1.0]])
+    g = gaussians(
+        offsets=[[3.0, 4.0, 0.0], [0.0, 0.0, 0.0]], scales=[[1.0, 2.0, 2.0], [0.0, 0.0, 1.0]]
+    )
     assert float(offset_norm(g.offsets)) == pytest.approx(2.5)
     assert float(scale_norm(g.log_scales)) == pytest.approx(2.0)  # (3 + 1) / 2
 
@@ -88,8 +97,9 @@ def test_gradient_reaches_the_render_and_the_gaussians(st_lpips):
     target = torch.rand(40, 40, 3, generator=torch.Generator().manual_seed(0))
     g = gaussians([[0.01, 0.0, 0.0]], [[0.01, 0.01, 0.01]])
     g.offsets.requires_grad_(True)
-    total, terms = TrainingLoss(LossWeights(), st_lpips)(pred, target, torch.ones(40, 40), g,
-                                                         lod=0.0)
+    total, terms = TrainingLoss(LossWeights(), st_lpips)(
+        pred, target, torch.ones(40, 40), g, lod=0.0
+    )
     total.backward()
     assert terms["lpips"] > 0
     assert pred.grad.abs().sum() > 0 and g.offsets.grad.abs().sum() > 0
@@ -97,8 +107,9 @@ def test_gradient_reaches_the_render_and_the_gaussians(st_lpips):
 
 def reference_images(h=64, w=80):
     yy, xx = np.mgrid[0:h, 0:w] / np.array([h, w])[:, None, None]
-    a = np.stack([0.5 + 0.4 * np.sin(7 * xx + 3 * yy), 0.5 + 0.4 * np.cos(5 * yy - 2 * xx),
-                  xx * yy], 0)
+    a = np.stack(
+        [0.5 + 0.4 * np.sin(7 * xx + 3 * yy), 0.5 + 0.4 * np.cos(5 * yy - 2 * xx), xx * yy], 0
+    )
     b = np.roll(a, 1, axis=2) * 0.9 + 0.05
     c = a + 0.1 * np.sin(40 * xx)[None]
     return [torch.tensor(x[None], dtype=torch.float32).clamp(0, 1) for x in (a, b, c)]

@@ -16,11 +16,13 @@ from archhead_addon.splat.sh import sh_to_rgb_numpy
 def _gaussians(n=40, seed=0):
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4))
-    return {"means": rng.normal(size=(n, 3)).astype(np.float32),
-            "log_scales": (rng.normal(size=(n, 3)) - 4).astype(np.float32),
-            "quats": (q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32),
-            "opacity_logits": rng.normal(size=n).astype(np.float32),
-            "sh": rng.normal(size=(n, 16, 3)).astype(np.float32)}
+    return {
+        "means": rng.normal(size=(n, 3)).astype(np.float32),
+        "log_scales": (rng.normal(size=(n, 3)) - 4).astype(np.float32),
+        "quats": (q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32),
+        "opacity_logits": rng.normal(size=n).astype(np.float32),
+        "sh": rng.normal(size=(n, 16, 3)).astype(np.float32),
+    }
 
 
 def test_ply_layout_and_round_trip(tmp_path):
@@ -66,8 +68,11 @@ def test_sh_rotation_keeps_the_colour_seen_from_each_direction():
     coeffs = rng.normal(size=(16, 3))
     turned = sh_rotation(rotation, 3) @ coeffs
     dirs = rng.normal(size=(200, 3))
-    np.testing.assert_allclose(sh_to_rgb_numpy(3, dirs @ rotation.T, turned[None]),
-                               sh_to_rgb_numpy(3, dirs, coeffs[None]), atol=1e-9)
+    np.testing.assert_allclose(
+        sh_to_rgb_numpy(3, dirs @ rotation.T, turned[None]),
+        sh_to_rgb_numpy(3, dirs, coeffs[None]),
+        atol=1e-9,
+    )
 
 
 def test_transform_gaussians_into_blender_world():
@@ -75,18 +80,24 @@ def test_transform_gaussians_into_blender_world():
     matrix = FLAME_TO_BLENDER.copy()
     matrix[:3, :3] *= 2.0
     matrix[:3, 3] = [0.1, -0.2, 0.3]
-    means, log_scales, quats, sh = transform_gaussians(matrix, g["means"], g["log_scales"],
-                                                       g["quats"], g["sh"])
+    means, log_scales, quats, sh = transform_gaussians(
+        matrix, g["means"], g["log_scales"], g["quats"], g["sh"]
+    )
     np.testing.assert_allclose(means, g["means"] @ matrix[:3, :3].T + matrix[:3, 3], atol=1e-5)
     np.testing.assert_allclose(log_scales, g["log_scales"] + np.log(2.0), atol=1e-6)
     # the covariance turns with the space: R_new = R_space R_old
-    np.testing.assert_allclose(quaternion_to_matrix(quats.astype(np.float64)),
-                               FLAME_TO_BLENDER[:3, :3] @ quaternion_to_matrix(
-                                   g["quats"].astype(np.float64)), atol=1e-5)
+    np.testing.assert_allclose(
+        quaternion_to_matrix(quats.astype(np.float64)),
+        FLAME_TO_BLENDER[:3, :3] @ quaternion_to_matrix(g["quats"].astype(np.float64)),
+        atol=1e-5,
+    )
     # the colour seen from a camera at c equals the one seen from its image in the new space
     camera = np.array([0.2, 0.1, 3.0])
     moved_camera = matrix[:3, :3] @ camera + matrix[:3, 3]
-    np.testing.assert_allclose(sh_to_rgb_numpy(3, means - moved_camera, sh),
-                               sh_to_rgb_numpy(3, g["means"] - camera, g["sh"]), atol=1e-4)
+    np.testing.assert_allclose(
+        sh_to_rgb_numpy(3, means - moved_camera, sh),
+        sh_to_rgb_numpy(3, g["means"] - camera, g["sh"]),
+        atol=1e-4,
+    )
     with pytest.raises(ValueError, match="unevenly"):
         similarity_parts(np.diag([1.0, 2.0, 1.0, 1.0]))

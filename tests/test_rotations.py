@@ -8,8 +8,12 @@ from archhead_addon import rotations as rot
 def _random_axis_angles(n, rng):
     axes = rng.normal(size=(n, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    angles = np.concatenate([[0.0, 1e-12, 1e-7, 1e-4, 0.3, np.pi / 2, np.pi - 1e-9, np.pi],
-                             rng.uniform(0, np.pi, n - 8)])
+    angles = np.concatenate(
+        [
+            [0.0, 1e-12, 1e-7, 1e-4, 0.3, np.pi / 2, np.pi - 1e-9, np.pi],
+            rng.uniform(0, np.pi, n - 8),
+        ]
+    )
     return axes * angles[:, None]
 
 
@@ -32,8 +36,9 @@ def test_axis_angle_matrix_against_series_and_orthonormal():
     aa = _random_axis_angles(64, rng)
     R = rot.axis_angle_to_matrix(aa)
     np.testing.assert_allclose(R, _rodrigues_reference(aa), atol=1e-12)
-    np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12
+    )
 
 
 def test_round_trips_stable_at_zero_and_pi():
@@ -48,8 +53,9 @@ def test_round_trips_stable_at_zero_and_pi():
     q = rot.axis_angle_to_quaternion(aa)
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1, atol=1e-12)
     np.testing.assert_allclose(rot.quaternion_to_matrix(q), R, atol=1e-12)
-    np.testing.assert_allclose(rot.rotation_6d_to_matrix(rot.matrix_to_rotation_6d(R)), R,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        rot.rotation_6d_to_matrix(rot.matrix_to_rotation_6d(R)), R, atol=1e-12
+    )
 
 
 def test_matrix_to_quaternion_half_turns():
@@ -84,14 +90,21 @@ def test_torch_matches_numpy_and_gradients_finite_at_zero():
     R.sum().backward()
     assert torch.isfinite(t.grad).all()
     back = rot.matrix_to_axis_angle(R.detach())
-    np.testing.assert_allclose(back.numpy(), rot.matrix_to_axis_angle(R.detach().numpy()),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        back.numpy(), rot.matrix_to_axis_angle(R.detach().numpy()), atol=1e-12
+    )
     # d/dr of R at r = 0 is the skew generator: compare with autograd
     z = torch.zeros(3, dtype=torch.float64, requires_grad=True)
     jac = torch.autograd.functional.jacobian(rot.axis_angle_to_matrix, z)
     gen = torch.zeros(3, 3, 3, dtype=torch.float64)
     gen[2, 1, 0], gen[1, 2, 0], gen[0, 2, 1], gen[2, 0, 1], gen[1, 0, 2], gen[0, 1, 2] = (
-        1, -1, 1, -1, 1, -1)
+        1,
+        -1,
+        1,
+        -1,
+        1,
+        -1,
+    )
     torch.testing.assert_close(jac, gen)
 
 

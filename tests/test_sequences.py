@@ -23,16 +23,26 @@ from archhead_addon.sequences import (
 def make_sequence(n=5, n_shape=10, n_expr=7, camera=True, seed=0, **changes) -> Sequence:
     rng = np.random.default_rng(seed)
     fields = {
-        "shape": rng.normal(size=(n, n_shape)), "expr": rng.normal(size=(n, n_expr)),
-        "jaw": rng.normal(size=(n, 3)), "neck": rng.normal(size=(n, 3)),
-        "eyes": rng.normal(size=(n, 6)), "rotation": rng.normal(size=(n, 3)),
-        "translation": rng.normal(size=(n, 3)), "fps": 30.0, "frame_ids": np.arange(n) * 2 + 7,
-        "source": "memory.npz", "format": "test", "static_offset": rng.normal(size=(12, 3)),
+        "shape": rng.normal(size=(n, n_shape)),
+        "expr": rng.normal(size=(n, n_expr)),
+        "jaw": rng.normal(size=(n, 3)),
+        "neck": rng.normal(size=(n, 3)),
+        "eyes": rng.normal(size=(n, 6)),
+        "rotation": rng.normal(size=(n, 3)),
+        "translation": rng.normal(size=(n, 3)),
+        "fps": 30.0,
+        "frame_ids": np.arange(n) * 2 + 7,
+        "source": "memory.npz",
+        "format": "test",
+        "static_offset": rng.normal(size=(12, 3)),
         "eyelids": rng.uniform(size=(n, 2)),
     }
     if camera:
-        fields.update(K=np.repeat(np.array([[[900.0, 0, 256], [0, 900, 250], [0, 0, 1]]]), n, 0),
-                      w2c=np.repeat(np.eye(4)[None], n, axis=0), image_size=(500, 512))
+        fields.update(
+            K=np.repeat(np.array([[[900.0, 0, 256], [0, 900, 250], [0, 0, 1]]]), n, 0),
+            w2c=np.repeat(np.eye(4)[None], n, axis=0),
+            image_size=(500, 512),
+        )
     fields.update(changes)
     return Sequence(**fields)
 
@@ -46,8 +56,11 @@ def test_fields_are_float64_and_len():
 def test_validate_names_key_and_frame():
     expr = np.zeros((5, 7))
     expr[3, 2] = np.nan
-    with pytest.raises(InputError, match=r"memory.npz: key 'expr': NaN or Inf at frame index 3 "
-                                         r"\(frame id 13\)"):
+    with pytest.raises(
+        InputError,
+        match=r"memory.npz: key 'expr': NaN or Inf at frame index 3 "
+        r"\(frame id 13\)",
+    ):
         make_sequence(expr=expr).validate()
     w2c = np.repeat(np.eye(4)[None], 5, axis=0)
     w2c[1, 0, 3] = np.inf
@@ -80,12 +93,20 @@ def test_fit_to_model_pads_and_truncates_with_warnings():
     with pytest.warns(InputWarning) as caught:
         fitted = seq.fit_to_model(model)
     messages = [str(w.message) for w in caught]
-    assert any("key 'shape': 300 identity shape coefficients, the model has 8: truncated, the "
-               "last 292 dropped" in m for m in messages)
-    assert any("key 'expr': 3 expression coefficients, the model has 6: padded with 3 zeros"
-               in m for m in messages)
-    assert any("key 'static_offset': 12 vertex offsets, the model has 20 vertices: padded with "
-               "8 zero rows" in m for m in messages)
+    assert any(
+        "key 'shape': 300 identity shape coefficients, the model has 8: truncated, the "
+        "last 292 dropped" in m
+        for m in messages
+    )
+    assert any(
+        "key 'expr': 3 expression coefficients, the model has 6: padded with 3 zeros" in m
+        for m in messages
+    )
+    assert any(
+        "key 'static_offset': 12 vertex offsets, the model has 20 vertices: padded with "
+        "8 zero rows" in m
+        for m in messages
+    )
     np.testing.assert_array_equal(fitted.shape, seq.shape[:, :8])
     np.testing.assert_array_equal(fitted.expr[:, :3], seq.expr)
     np.testing.assert_array_equal(fitted.expr[:, 3:], 0.0)
@@ -144,8 +165,9 @@ def test_canonical_version_and_keys(tmp_path):
 
 def test_unrecognised_inputs_list_the_formats(tmp_path):
     (tmp_path / "notes.txt").write_text("hello")
-    with pytest.raises(InputError, match="notes.txt: unrecognised input; supported formats: "
-                                         "canonical"):
+    with pytest.raises(
+        InputError, match="notes.txt: unrecognised input; supported formats: canonical"
+    ):
         detect_format(tmp_path / "notes.txt")
     np.savez(tmp_path / "other.npz", a=np.zeros(2))
     with pytest.raises(InputError, match=r"keys \['a'\] matches no format; supported formats"):
@@ -162,12 +184,25 @@ def test_unrecognised_inputs_list_the_formats(tmp_path):
 def test_convert_command(tmp_path):
     write_vhap_export(tmp_path / "vhap", timesteps=(0, 1, 2))
     out = tmp_path / "out" / "seq.npz"
-    result = subprocess.run([sys.executable, "-m", "archhead_addon", "convert",
-                             str(tmp_path / "vhap"), str(out), "--fps", "50"],
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "archhead_addon",
+            "convert",
+            str(tmp_path / "vhap"),
+            str(out),
+            "--fps",
+            "50",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.strip() == (f"{out}: 3 frames, 50 fps, from vhap, shape 300, expr 100, "
-                                     "camera 512x520")
+    assert result.stdout.strip() == (
+        f"{out}: 3 frames, 50 fps, from vhap, shape 300, expr 100, camera 512x520"
+    )
     back = read_canonical(out)
     assert back.data_equal(read_sequence(tmp_path / "vhap", fps=50))
 

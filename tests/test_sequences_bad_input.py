@@ -47,6 +47,7 @@ def _escape(text):
 
 # ---------------------------------------------------------------- missing keys
 
+
 def test_missing_keys(tmp_path):
     write_vhap_export(tmp_path / "v")
     param = tmp_path / "v" / "flame_param" / "00002.npz"
@@ -83,6 +84,7 @@ def test_missing_transforms_entries(tmp_path):
 
 # ---------------------------------------------------------------- wrong shapes
 
+
 def test_wrong_shapes(tmp_path):
     write_vhap_export(tmp_path / "v")
     param = tmp_path / "v" / "flame_param" / "00000.npz"
@@ -91,8 +93,12 @@ def test_wrong_shapes(tmp_path):
 
     write_fht(tmp_path / "f")
     _edit_npz(tmp_path / "f" / "0.npz", exp=np.zeros((2, 100), np.float32))
-    _raises(tmp_path / "f" / "0.npz", "exp", r"expected shape \(1, E\), found \(2, 100\)",
-            tmp_path / "f")
+    _raises(
+        tmp_path / "f" / "0.npz",
+        "exp",
+        r"expected shape \(1, E\), found \(2, 100\)",
+        tmp_path / "f",
+    )
 
     write_metrical(tmp_path / "m", n=1)
     frame = tmp_path / "m" / "checkpoint" / "00000.frame"
@@ -102,19 +108,26 @@ def test_wrong_shapes(tmp_path):
     clip = clip_dict()
     clip["jaw"] = np.zeros((6, 6), np.float32)
     write_clip(tmp_path / "c.npz", "npz", clip)
-    _raises(tmp_path / "c.npz", "jaw", r"expected shape \(6, 3\), found \(6, 6\)",
-            tmp_path / "c.npz")
+    _raises(
+        tmp_path / "c.npz", "jaw", r"expected shape \(6, 3\), found \(6, 6\)", tmp_path / "c.npz"
+    )
 
 
 def test_images_of_different_sizes(tmp_path):
     write_metrical(tmp_path, n=2)
-    _edit_frame(tmp_path / "checkpoint" / "00001.frame",
-                lambda f: f.update(img_size=np.array([256, 256])))
-    _raises(tmp_path, "img_size", r"frames differ in image size: \[\(256, 256\), \(512, 512\)\]",
-            tmp_path)
+    _edit_frame(
+        tmp_path / "checkpoint" / "00001.frame", lambda f: f.update(img_size=np.array([256, 256]))
+    )
+    _raises(
+        tmp_path,
+        "img_size",
+        r"frames differ in image size: \[\(256, 256\), \(512, 512\)\]",
+        tmp_path,
+    )
 
 
 # ---------------------------------------------------------------- NaN / Inf
+
 
 def test_nan_and_inf(tmp_path):
     write_vhap_export(tmp_path / "v")
@@ -134,8 +147,12 @@ def test_nan_and_inf(tmp_path):
     expr = np.load(tmp_path / "canonical.npz")["expr"]
     expr[1, 5] = np.nan
     _edit_npz(tmp_path / "canonical.npz", expr=expr)
-    _raises(tmp_path / "canonical.npz", "expr", "NaN or Inf at frame index 1",
-            tmp_path / "canonical.npz")
+    _raises(
+        tmp_path / "canonical.npz",
+        "expr",
+        "NaN or Inf at frame index 1",
+        tmp_path / "canonical.npz",
+    )
 
     clip = clip_dict()
     clip["exp"][4, 0] = -np.inf
@@ -145,22 +162,30 @@ def test_nan_and_inf(tmp_path):
 
 # ---------------------------------------------------------------- empty sequences
 
+
 def test_empty_sequences(tmp_path):
     clip = {"exp": np.zeros((0, 100), np.float32), "jaw": np.zeros((0, 3), np.float32), "fps": 30}
     write_clip(tmp_path / "c.npz", "npz", clip)
     _raises(tmp_path / "c.npz", "expr", "the sequence has no frames", tmp_path / "c.npz")
 
     (tmp_path / "f").mkdir()
-    _raises(tmp_path / "f", None, r"no '\*.npz' files in this folder", tmp_path / "f",
-            "flame-head-tracker")
+    _raises(
+        tmp_path / "f",
+        None,
+        r"no '\*.npz' files in this folder",
+        tmp_path / "f",
+        "flame-head-tracker",
+    )
 
     write_vhap_export(tmp_path / "v")
     (tmp_path / "v" / "transforms.json").write_text(json.dumps({"frames": []}))
-    _raises(tmp_path / "v" / "transforms.json", "frames", "the sequence has no frames",
-            tmp_path / "v")
+    _raises(
+        tmp_path / "v" / "transforms.json", "frames", "the sequence has no frames", tmp_path / "v"
+    )
 
 
 # ---------------------------------------------------------------- truncated / corrupt files
+
 
 def test_truncated_and_corrupt_files(tmp_path):
     write_vhap_export(tmp_path / "v")
@@ -188,20 +213,37 @@ def test_pickled_clip_with_foreign_class_is_refused(tmp_path):
     clip["extra"] = torch.nn.Identity()  # any class outside the allow-list
     with open(tmp_path / "c.pkl", "wb") as f:
         pickle.dump(clip, f)
-    _raises(tmp_path / "c.pkl", None, "pickle refers to 'torch.nn.modules.linear.Identity'",
-            tmp_path / "c.pkl")
+    _raises(
+        tmp_path / "c.pkl",
+        None,
+        "pickle refers to 'torch.nn.modules.linear.Identity'",
+        tmp_path / "c.pkl",
+    )
 
 
 # ---------------------------------------------------------------- mixed frame numbering
 
-@pytest.mark.parametrize("names,problem", [
-    (["00000.npz", "00001.npz", "7.npz"], r"mixed frame numbering \(most are zero-padded to 5 "
-                                          r"digits\): 7.npz$"),
-    (["0.npz", "1.npz", "01.npz"], r"duplicate frame numbers: 01.npz, 1.npz$"),
-    (["0.npz", "1.npz", "frame_2.npz"], r"mixed frame file names \(most start with ''\): "
-                                        r"frame_2.npz$"),
-    (["0.npz", "1.npz", "final.npz"], r"files without a frame number in their name: final.npz$"),
-])
+
+@pytest.mark.parametrize(
+    "names,problem",
+    [
+        (
+            ["00000.npz", "00001.npz", "7.npz"],
+            r"mixed frame numbering \(most are zero-padded to 5 "
+            r"digits\): 7.npz$",
+        ),
+        (["0.npz", "1.npz", "01.npz"], r"duplicate frame numbers: 01.npz, 1.npz$"),
+        (
+            ["0.npz", "1.npz", "frame_2.npz"],
+            r"mixed frame file names \(most start with ''\): "
+            r"frame_2.npz$",
+        ),
+        (
+            ["0.npz", "1.npz", "final.npz"],
+            r"files without a frame number in their name: final.npz$",
+        ),
+    ],
+)
 def test_mixed_frame_numbering(tmp_path, names, problem):
     write_fht(tmp_path / "one", n=1)
     (tmp_path / "mixed").mkdir()

@@ -53,6 +53,7 @@ def points(rng, n=20):
 
 # ---------------------------------------------------------------- VHAP / GaussianAvatars
 
+
 def vhap_codes(rng, n, n_verts=40):
     return {
         "translation": rng.normal(0, 0.01, (n, 3)).astype(F32),
@@ -74,26 +75,53 @@ def write_vhap_export(root, timesteps=(0, 1, 2, 3), cameras=(0,), seed=0, split=
     frames, cams = [], {}
     for c in cameras:
         eye = np.r_[rng.uniform(-0.5, 0.5, 2), 1.0 + rng.uniform(0, 0.3)]
-        cams[c] = {"c2w": look_at_c2w_gl(eye), "fl_x": 1000.0 + 10 * c, "fl_y": 1002.0 + 10 * c,
-                   "cx": 251.5 + c, "cy": 262.25, "w": 512, "h": 520}
+        cams[c] = {
+            "c2w": look_at_c2w_gl(eye),
+            "fl_x": 1000.0 + 10 * c,
+            "fl_y": 1002.0 + 10 * c,
+            "cx": 251.5 + c,
+            "cy": 262.25,
+            "w": 512,
+            "h": 520,
+        }
     for i, t in enumerate(timesteps):
         per_t = {k: v if k in ("shape", "static_offset") else v[[i]] for k, v in codes.items()}
         per_t["dynamic_offset"] = np.zeros((1, 40, 3), F32)
         np.savez(root / "flame_param" / f"{t:05d}.npz", **per_t)
         for c in cameras:
             cam = cams[c]
-            frames.append({
-                "timestep_index": t, "timestep_index_original": t, "timestep_id": f"frame_{t:05d}",
-                "camera_index": c, "camera_id": f"22{c:04d}",
-                "cx": cam["cx"], "cy": cam["cy"], "fl_x": cam["fl_x"], "fl_y": cam["fl_y"],
-                "h": cam["h"], "w": cam["w"], "camera_angle_x": 0.5, "camera_angle_y": 0.5,
-                "transform_matrix": cam["c2w"].tolist(),
-                "file_path": f"images/{t:05d}_{c:02d}.png",
-                "fg_mask_path": f"fg_masks/{t:05d}_{c:02d}.png",
-                "flame_param_path": f"flame_param/{t:05d}.npz",
-            })
-    db = {"frames": frames, "cx": 256.0, "cy": 256.0, "fl_x": 1000.0, "fl_y": 1000.0, "h": 520,
-          "w": 512, "timestep_indices": list(timesteps), "camera_indices": list(cameras)}
+            frames.append(
+                {
+                    "timestep_index": t,
+                    "timestep_index_original": t,
+                    "timestep_id": f"frame_{t:05d}",
+                    "camera_index": c,
+                    "camera_id": f"22{c:04d}",
+                    "cx": cam["cx"],
+                    "cy": cam["cy"],
+                    "fl_x": cam["fl_x"],
+                    "fl_y": cam["fl_y"],
+                    "h": cam["h"],
+                    "w": cam["w"],
+                    "camera_angle_x": 0.5,
+                    "camera_angle_y": 0.5,
+                    "transform_matrix": cam["c2w"].tolist(),
+                    "file_path": f"images/{t:05d}_{c:02d}.png",
+                    "fg_mask_path": f"fg_masks/{t:05d}_{c:02d}.png",
+                    "flame_param_path": f"flame_param/{t:05d}.npz",
+                }
+            )
+    db = {
+        "frames": frames,
+        "cx": 256.0,
+        "cy": 256.0,
+        "fl_x": 1000.0,
+        "fl_y": 1000.0,
+        "h": 520,
+        "w": 512,
+        "timestep_indices": list(timesteps),
+        "camera_indices": list(cameras),
+    }
     if split is None:
         (root / "transforms.json").write_text(json.dumps(db))
     else:  # GaussianAvatars' division: the last timestep is the test split
@@ -109,9 +137,14 @@ def test_vhap_export_values_and_camera(tmp_path):
     seq = read_sequence(tmp_path, fps=30)
     assert (seq.format, len(seq), seq.fps, seq.image_size) == ("vhap", 4, 30.0, (520, 512))
     np.testing.assert_array_equal(seq.frame_ids, [0, 1, 2, 5])
-    for ours, theirs in (("expr", "expr"), ("jaw", "jaw_pose"), ("neck", "neck_pose"),
-                         ("eyes", "eyes_pose"), ("rotation", "rotation"),
-                         ("translation", "translation")):
+    for ours, theirs in (
+        ("expr", "expr"),
+        ("jaw", "jaw_pose"),
+        ("neck", "neck_pose"),
+        ("eyes", "eyes_pose"),
+        ("rotation", "rotation"),
+        ("translation", "translation"),
+    ):
         assert getattr(seq, ours).dtype == np.float64
         np.testing.assert_array_equal(getattr(seq, ours), codes[theirs])
     np.testing.assert_array_equal(seq.shape, np.repeat(codes["shape"][None], 4, axis=0))
@@ -120,8 +153,9 @@ def test_vhap_export_values_and_camera(tmp_path):
     cam = cams[0]
     pts = points(np.random.default_rng(1))
     gl = (np.linalg.inv(cam["c2w"]) @ np.c_[pts, np.ones(len(pts))].T)[:3]
-    native = np.stack([cam["cx"] + cam["fl_x"] * gl[0] / -gl[2],
-                       cam["cy"] - cam["fl_y"] * gl[1] / -gl[2]], axis=1)
+    native = np.stack(
+        [cam["cx"] + cam["fl_x"] * gl[0] / -gl[2], cam["cy"] - cam["fl_y"] * gl[1] / -gl[2]], axis=1
+    )
     for t in range(len(seq)):
         np.testing.assert_allclose(project(seq, t, pts), native, atol=1e-9)
 
@@ -155,10 +189,16 @@ def test_vhap_flame_param_folder_without_cameras(tmp_path):
 def write_vhap_tracked(path, n=5, seed=2):
     """tracker.save_result's tracked_flame_params_<epoch>.npz (uncalibrated monocular)."""
     codes = vhap_codes(np.random.default_rng(seed), n)
-    np.savez(path, **codes, timestep_id=np.array([f"{t:05d}" for t in range(n)]),
-             n_processed_frames=n, focal_length=np.array([1.5], F32),
-             tex=np.zeros(100, F32), lights=np.zeros((9, 3), F32),
-             image_size=np.array([480, 640]))
+    np.savez(
+        path,
+        **codes,
+        timestep_id=np.array([f"{t:05d}" for t in range(n)]),
+        n_processed_frames=n,
+        focal_length=np.array([1.5], F32),
+        tex=np.zeros(100, F32),
+        lights=np.zeros((9, 3), F32),
+        image_size=np.array([480, 640]),
+    )
     return codes
 
 
@@ -173,16 +213,21 @@ def test_vhap_tracked_npz_and_its_camera(tmp_path):
     assert seq.image_size == (480, 640)
     # Camera at (0, 0, 1) looking at the origin, focal 1.5 * max(H, W), centred.
     f = 1.5 * 640
-    np.testing.assert_allclose(project(seq, 0, np.array([[0.0, 0, 0], [0.1, 0.05, 0]])),
-                               [[320, 240], [320 + f * 0.1, 240 - f * 0.05]], atol=1e-9)
+    np.testing.assert_allclose(
+        project(seq, 0, np.array([[0.0, 0, 0], [0.1, 0.05, 0]])),
+        [[320, 240], [320 + f * 0.1, 240 - f * 0.05]],
+        atol=1e-9,
+    )
 
 
 # ---------------------------------------------------------------- metrical-tracker
 
+
 def rot6d(aa):
     """PyTorch3D matrix_to_rotation_6d: the first two rows of the matrix."""
     return axis_angle_to_matrix(np.asarray(aa, dtype=np.float64))[..., :2, :].reshape(
-        *np.shape(aa)[:-1], 6)
+        *np.shape(aa)[:-1], 6
+    )
 
 
 def write_metrical(folder, n=3, seed=3, tensors=False):
@@ -193,17 +238,26 @@ def write_metrical(folder, n=3, seed=3, tensors=False):
     for t in range(n):
         R = axis_angle_to_matrix(rng.normal(0, 0.3, 3))
         frame = {
-            "flame": {"exp": rng.normal(0, 1, (1, 100)).astype(F32),
-                      "shape": rng.normal(0, 1, (1, 300)).astype(F32),
-                      "tex": np.zeros((1, 140), F32), "sh": np.zeros((1, 9, 3), F32),
-                      "eyes": rot6d(truth["eyes"][t].reshape(2, 3)).reshape(1, 12).astype(F32),
-                      "eyelids": rng.uniform(0, 1, (1, 2)).astype(F32),
-                      "jaw": rot6d(truth["jaw"][t])[None].astype(F32)},
-            "camera": {"R": rot6d(np.zeros(3))[None].astype(F32),
-                       "t": np.array([[0, 0, 1]], F32), "fl": np.array([[9.7]], F32),
-                       "pp": np.zeros((1, 2), F32)},
-            "opencv": {"R": R[None].astype(F32), "t": np.array([[0.01, -0.02, 1.1]], F32),
-                       "K": np.array([[[2500, 0, 256], [0, 2500, 256], [0, 0, 1]]], F32)},
+            "flame": {
+                "exp": rng.normal(0, 1, (1, 100)).astype(F32),
+                "shape": rng.normal(0, 1, (1, 300)).astype(F32),
+                "tex": np.zeros((1, 140), F32),
+                "sh": np.zeros((1, 9, 3), F32),
+                "eyes": rot6d(truth["eyes"][t].reshape(2, 3)).reshape(1, 12).astype(F32),
+                "eyelids": rng.uniform(0, 1, (1, 2)).astype(F32),
+                "jaw": rot6d(truth["jaw"][t])[None].astype(F32),
+            },
+            "camera": {
+                "R": rot6d(np.zeros(3))[None].astype(F32),
+                "t": np.array([[0, 0, 1]], F32),
+                "fl": np.array([[9.7]], F32),
+                "pp": np.zeros((1, 2), F32),
+            },
+            "opencv": {
+                "R": R[None].astype(F32),
+                "t": np.array([[0.01, -0.02, 1.1]], F32),
+                "K": np.array([[[2500, 0, 256], [0, 2500, 256], [0, 0, 1]]], F32),
+            },
             "img_size": np.array([512, 512]),
             "frame_id": f"{t:05d}",
             "global_step": 100 * t,
@@ -222,12 +276,14 @@ def test_metrical_frames(tmp_path, tensors):
     assert detect_format(tmp_path) == "metrical-tracker"
     seq = read_sequence(tmp_path, fps=25)
     raw = truth["raw"]
-    as_np = [{s: {k: np.asarray(v) for k, v in f[s].items()} for s in ("flame", "opencv")}
-             for f in raw]
+    as_np = [
+        {s: {k: np.asarray(v) for k, v in f[s].items()} for s in ("flame", "opencv")} for f in raw
+    ]
     np.testing.assert_array_equal(seq.expr, np.concatenate([f["flame"]["exp"] for f in as_np]))
     np.testing.assert_array_equal(seq.shape, np.concatenate([f["flame"]["shape"] for f in as_np]))
-    np.testing.assert_array_equal(seq.eyelids,
-                                  np.concatenate([f["flame"]["eyelids"] for f in as_np]))
+    np.testing.assert_array_equal(
+        seq.eyelids, np.concatenate([f["flame"]["eyelids"] for f in as_np])
+    )
     np.testing.assert_allclose(seq.jaw, truth["jaw"], atol=1e-6)  # float32 6D in the file
     np.testing.assert_allclose(seq.eyes, truth["eyes"], atol=1e-6)
     for name in ("rotation", "neck", "translation"):  # the camera carries the head pose
@@ -244,11 +300,14 @@ def test_metrical_frames(tmp_path, tensors):
 
 def test_metrical_frames_read_without_torch(tmp_path):
     write_metrical(tmp_path)
-    code = ("import sys; from archhead_addon.sequences import read_sequence; "
-            f"assert len(read_sequence({str(tmp_path)!r}, fps=25)) == 3; "
-            "assert 'torch' not in sys.modules, 'torch was imported'")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                            timeout=60)
+    code = (
+        "import sys; from archhead_addon.sequences import read_sequence; "
+        f"assert len(read_sequence({str(tmp_path)!r}, fps=25)) == 3; "
+        "assert 'torch' not in sys.modules, 'torch was imported'"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+    )
     assert result.returncode == 0, result.stderr
 
 
@@ -261,6 +320,7 @@ def test_metrical_single_frame_file(tmp_path):
 
 
 # ---------------------------------------------------------------- flame-head-tracker
+
 
 def their_euler(R):
     """tracker_base's rotation_matrix_to_euler_angles, as stored in `cam[:3]`."""
@@ -276,10 +336,14 @@ def their_projection(rotvec, position, K, pts, size=256, near=0.01, far=100.0):
     Rt[:, [1, 2]] *= -1
     world2view = np.linalg.inv(Rt)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    proj = np.array([[2 * fx / size, 0, (size - 2 * cx) / size, 0],
-                     [0, 2 * fy / size, (size - 2 * cy) / size, 0],
-                     [0, 0, (far + near) / (far - near), -2 * far * near / (far - near)],
-                     [0, 0, 1, 0]])
+    proj = np.array(
+        [
+            [2 * fx / size, 0, (size - 2 * cx) / size, 0],
+            [0, 2 * fy / size, (size - 2 * cy) / size, 0],
+            [0, 0, (far + near) / (far - near), -2 * far * near / (far - near)],
+            [0, 0, 1, 0],
+        ]
+    )
     full = proj @ world2view
     full[1] *= -1
     clip = np.c_[pts, np.ones(len(pts))] @ full.T
@@ -301,16 +365,25 @@ def write_fht(folder, n=3, seed=5, fov=20.0):
         cam = np.r_[their_euler(axis_angle_to_matrix(rotvec)), position].astype(F32)
         cams.append((rotvec, position))
         np.savez_compressed(
-            folder / f"{t}.npz", shape=rng.normal(0, 1, (1, 300)).astype(F32),
-            exp=rng.normal(0, 1, (1, 100)).astype(F32), head_pose=np.zeros((1, 3), F32),
+            folder / f"{t}.npz",
+            shape=rng.normal(0, 1, (1, 300)).astype(F32),
+            exp=rng.normal(0, 1, (1, 100)).astype(F32),
+            head_pose=np.zeros((1, 3), F32),
             jaw_pose=rng.normal(0, 0.1, (1, 3)).astype(F32),
             neck_pose=rng.normal(0, 0.1, (1, 3)).astype(F32),
-            eye_pose=rng.normal(0, 0.1, (1, 6)).astype(F32), tex=np.zeros((1, 50), F32),
-            texture=np.zeros((1, 3, 4, 4), F32), light=np.zeros((1, 9, 3), F32),
-            cam=cam[None], fov=np.array([fov], F32), K=K[None],
+            eye_pose=rng.normal(0, 0.1, (1, 6)).astype(F32),
+            tex=np.zeros((1, 50), F32),
+            texture=np.zeros((1, 3, 4, 4), F32),
+            light=np.zeros((1, 9, 3), F32),
+            cam=cam[None],
+            fov=np.array([fov], F32),
+            K=K[None],
             img_rendered=np.zeros((1, 8, 8, 3), np.uint8),
-            mesh_rendered=np.zeros((1, 8, 8, 3), np.uint8), img=np.zeros((1, 8, 8, 3), np.uint8),
-            lmks_68=np.zeros((1, 68, 2), F32), blendshape_scores=np.zeros((1, 52), F32))
+            mesh_rendered=np.zeros((1, 8, 8, 3), np.uint8),
+            img=np.zeros((1, 8, 8, 3), np.uint8),
+            lmks_68=np.zeros((1, 68, 2), F32),
+            blendshape_scores=np.zeros((1, 52), F32),
+        )
     return cams
 
 
@@ -320,8 +393,14 @@ def test_flame_head_tracker_frames_and_camera(tmp_path):
     seq = read_sequence(tmp_path, fps=25)
     np.testing.assert_array_equal(seq.frame_ids, np.arange(12))
     ten = np.load(tmp_path / "10.npz")
-    for ours, theirs in (("shape", "shape"), ("expr", "exp"), ("rotation", "head_pose"),
-                         ("jaw", "jaw_pose"), ("neck", "neck_pose"), ("eyes", "eye_pose")):
+    for ours, theirs in (
+        ("shape", "shape"),
+        ("expr", "exp"),
+        ("rotation", "head_pose"),
+        ("jaw", "jaw_pose"),
+        ("neck", "neck_pose"),
+        ("eyes", "eye_pose"),
+    ):
         np.testing.assert_array_equal(getattr(seq, ours)[10], ten[theirs][0])
     np.testing.assert_array_equal(seq.translation, 0.0)
     assert seq.image_size == (256, 256)
@@ -343,10 +422,14 @@ def test_flame_head_tracker_without_K_uses_fov(tmp_path):
 
 # ---------------------------------------------------------------- driving clips
 
+
 def clip_dict(n=6, seed=7):
     rng = np.random.default_rng(seed)
-    return {"exp": rng.normal(0, 1, (n, 100)).astype(F32),
-            "jaw": rng.normal(0, 0.1, (n, 3)).astype(F32), "fps": 30}
+    return {
+        "exp": rng.normal(0, 1, (n, 100)).astype(F32),
+        "jaw": rng.normal(0, 0.1, (n, 3)).astype(F32),
+        "fps": 30,
+    }
 
 
 def write_clip(path, kind, clip):
@@ -356,12 +439,15 @@ def write_clip(path, kind, clip):
         with open(path, "wb") as f:
             pickle.dump(clip, f, protocol=int(kind[-1]))
     else:
-        torch.save({k: torch.from_numpy(v) if isinstance(v, np.ndarray) else v
-                    for k, v in clip.items()}, path)
+        torch.save(
+            {k: torch.from_numpy(v) if isinstance(v, np.ndarray) else v for k, v in clip.items()},
+            path,
+        )
 
 
-@pytest.mark.parametrize("kind,suffix", [("npz", ".npz"), ("pickle2", ".pkl"),
-                                         ("pickle5", ".pkl"), ("torch", ".pt")])
+@pytest.mark.parametrize(
+    "kind,suffix", [("npz", ".npz"), ("pickle2", ".pkl"), ("pickle5", ".pkl"), ("torch", ".pt")]
+)
 def test_driving_clip(tmp_path, kind, suffix):
     clip = clip_dict()
     path = tmp_path / f"clip{suffix}"
@@ -376,6 +462,7 @@ def test_driving_clip(tmp_path, kind, suffix):
 
 
 # ---------------------------------------------------------------- round trips
+
 
 def _write_any(kind, root):
     root.mkdir()
@@ -395,8 +482,9 @@ def _write_any(kind, root):
     return root / "clip.pt"
 
 
-@pytest.mark.parametrize("kind", ["vhap-export", "vhap-tracked", "metrical",
-                                  "flame-head-tracker", "driving"])
+@pytest.mark.parametrize(
+    "kind", ["vhap-export", "vhap-tracked", "metrical", "flame-head-tracker", "driving"]
+)
 def test_round_trip_through_canonical(tmp_path, kind):
     seq = read_sequence(_write_any(kind, tmp_path / "in"), fps=24)
     write_canonical(seq, tmp_path / "out.npz")
@@ -404,4 +492,3 @@ def test_round_trip_through_canonical(tmp_path, kind):
     assert back.format == "canonical" and back.data_equal(seq)
     with np.load(tmp_path / "out.npz") as z:
         assert str(z["source_format"]) == seq.format and int(z["format_version"]) == 1
-

@@ -16,16 +16,42 @@ from archhead_addon.splat.blender_render import (
     render_from_blender_camera,
 )
 
+pytestmark = pytest.mark.blender
+
 CAMERAS = [
-    BlenderCamera(lens=50.0, sensor_width=36.0, shift_x=0.0, shift_y=0.0, resolution_x=64,
-                  resolution_y=48),
-    BlenderCamera(lens=35.0, sensor_width=32.0, shift_x=0.12, shift_y=-0.07, resolution_x=40,
-                  resolution_y=56, pixel_aspect_x=1.0, pixel_aspect_y=1.25),
-    BlenderCamera(lens=40.0, sensor_width=30.0, shift_x=-0.05, shift_y=0.1, resolution_x=36,
-                  resolution_y=60, sensor_fit="AUTO"),  # portrait: AUTO fits the height
-    BlenderCamera(lens=28.0, sensor_width=36.0, sensor_height=20.0, shift_x=0.03,
-                  shift_y=-0.02, resolution_x=64, resolution_y=40, pixel_aspect_x=1.5,
-                  sensor_fit="VERTICAL"),
+    BlenderCamera(
+        lens=50.0, sensor_width=36.0, shift_x=0.0, shift_y=0.0, resolution_x=64, resolution_y=48
+    ),
+    BlenderCamera(
+        lens=35.0,
+        sensor_width=32.0,
+        shift_x=0.12,
+        shift_y=-0.07,
+        resolution_x=40,
+        resolution_y=56,
+        pixel_aspect_x=1.0,
+        pixel_aspect_y=1.25,
+    ),
+    BlenderCamera(
+        lens=40.0,
+        sensor_width=30.0,
+        shift_x=-0.05,
+        shift_y=0.1,
+        resolution_x=36,
+        resolution_y=60,
+        sensor_fit="AUTO",
+    ),  # portrait: AUTO fits the height
+    BlenderCamera(
+        lens=28.0,
+        sensor_width=36.0,
+        sensor_height=20.0,
+        shift_x=0.03,
+        shift_y=-0.02,
+        resolution_x=64,
+        resolution_y=40,
+        pixel_aspect_x=1.5,
+        sensor_fit="VERTICAL",
+    ),
 ]
 CAMERA_IDS = ["default", "shift_aspect", "auto_portrait", "vertical_aspect"]
 
@@ -34,15 +60,21 @@ def bpy_camera(cam: BlenderCamera, matrix_world):
     scene = bpy.context.scene
     data = bpy.data.cameras.new("splat_test_camera")
     data.sensor_fit = cam.sensor_fit
-    data.lens, data.sensor_width, data.sensor_height = cam.lens, cam.sensor_width, (
-        cam.sensor_height)
+    data.lens, data.sensor_width, data.sensor_height = (
+        cam.lens,
+        cam.sensor_width,
+        (cam.sensor_height),
+    )
     data.shift_x, data.shift_y = cam.shift_x, cam.shift_y
     obj = bpy.data.objects.new("splat_test_camera", data)
     scene.collection.objects.link(obj)
     obj.matrix_world = Matrix(matrix_world.tolist())
     r = scene.render
-    r.resolution_x, r.resolution_y, r.resolution_percentage = (cam.resolution_x,
-                                                                cam.resolution_y, 100)
+    r.resolution_x, r.resolution_y, r.resolution_percentage = (
+        cam.resolution_x,
+        cam.resolution_y,
+        100,
+    )
     r.pixel_aspect_x, r.pixel_aspect_y = cam.pixel_aspect_x, cam.pixel_aspect_y
     return scene, obj
 
@@ -73,8 +105,13 @@ def look_from(eye, target):
 def restore_blender_state():
     """Leave the session's Blender data as found (other test modules share it)."""
     r = bpy.context.scene.render
-    keys = ("resolution_x", "resolution_y", "resolution_percentage", "pixel_aspect_x",
-            "pixel_aspect_y")
+    keys = (
+        "resolution_x",
+        "resolution_y",
+        "resolution_percentage",
+        "pixel_aspect_x",
+        "pixel_aspect_y",
+    )
     saved = {k: getattr(r, k) for k in keys}
     yield
     for k, v in saved.items():
@@ -108,8 +145,14 @@ def test_rendered_gaussian_lands_where_blender_projects_it(cam):
     depth = (viewmat[:3, :3] @ mean_flame + viewmat[:3, 3])[2]
     sigma = 2.0 * depth / K[0, 0]  # about 2 px
     raster = render_from_blender_camera(
-        mean_flame[None], np.array([[1.0, 0, 0, 0]]), np.full((1, 3), np.log(sigma)),
-        np.array([3.0]), np.array([[1.0, 1.0, 1.0]]), cam, matrix_world)
+        mean_flame[None],
+        np.array([[1.0, 0, 0, 0]]),
+        np.full((1, 3), np.log(sigma)),
+        np.array([3.0]),
+        np.array([[1.0, 1.0, 1.0]]),
+        cam,
+        matrix_world,
+    )
     ys, xs = np.mgrid[: cam.resolution_y, : cam.resolution_x] + 0.5
     w = raster.alpha
     centroid = np.array([(w * xs).sum() / w.sum(), (w * ys).sum() / w.sum()])
@@ -130,13 +173,18 @@ def test_blender_render_with_sh_matches_rasterization():
     log_scales = rng.normal(np.log(0.01), 0.3, (n, 3))
     logits = rng.normal(1, 1, n)
     sh = rng.normal(0, 0.3, (n, 16, 3))
-    ours = render_from_blender_camera(means, quats, log_scales, logits, sh, cam, matrix_world,
-                                      background=(0.1, 0.1, 0.1))
+    ours = render_from_blender_camera(
+        means, quats, log_scales, logits, sh, cam, matrix_world, background=(0.1, 0.1, 0.1)
+    )
     viewmat, K = blender_camera_to_opencv(cam, matrix_world)
-    ref = rasterization(*(torch.tensor(a, dtype=torch.float32) for a in
-                          (means, quats, log_scales, logits, sh)),
-                        viewmat, K, cam.resolution_x, cam.resolution_y,
-                        background=(0.1, 0.1, 0.1))
+    ref = rasterization(
+        *(torch.tensor(a, dtype=torch.float32) for a in (means, quats, log_scales, logits, sh)),
+        viewmat,
+        K,
+        cam.resolution_x,
+        cam.resolution_y,
+        background=(0.1, 0.1, 0.1),
+    )
     assert ours.alpha.max() > 0.9
     np.testing.assert_allclose(ours.rgb, ref.rgb.numpy(), atol=1e-5)
     np.testing.assert_allclose(ours.alpha, ref.alpha[..., 0].numpy(), atol=1e-6)
@@ -164,11 +212,19 @@ def test_object_transform_folds_into_the_view():
     obj = np.eye(4)
     obj[:3, :3], obj[:3, 3] = scale * R, (0.02, -0.03, 0.1)
 
-    ours = render_from_blender_camera(means, quats, log_scales, logits, colors, cam,
-                                      camera_matrix_world, obj)
+    ours = render_from_blender_camera(
+        means, quats, log_scales, logits, colors, cam, camera_matrix_world, obj
+    )
     world = render_from_blender_camera(
-        means @ obj[:3, :3].T + obj[:3, 3], matrix_to_quaternion(R @ quaternion_to_matrix(quats)),
-        log_scales + np.log(scale), logits, colors, cam, camera_matrix_world, np.eye(4))
+        means @ obj[:3, :3].T + obj[:3, 3],
+        matrix_to_quaternion(R @ quaternion_to_matrix(quats)),
+        log_scales + np.log(scale),
+        logits,
+        colors,
+        cam,
+        camera_matrix_world,
+        np.eye(4),
+    )
     assert ours.alpha.max() > 0.9
     np.testing.assert_allclose(ours.rgb, world.rgb, atol=1e-5)
     np.testing.assert_allclose(ours.alpha, world.alpha, atol=1e-5)

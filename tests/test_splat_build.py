@@ -32,8 +32,13 @@ def test_missing_compiler_says_what_to_install(tmp_path):
 
 def run_copy(tmp_path, code):
     """Run code against a copy of the package (its build directory as prepared)."""
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=tmp_path,
-                          capture_output=True, text=True, env={"PYTHONPATH": str(tmp_path)})
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env={"PYTHONPATH": str(tmp_path)},
+    )
 
 
 def copy_package(tmp_path, with_build):
@@ -69,7 +74,9 @@ def test_loader_reports_stale_library(tmp_path):
 def test_numpy_path_does_not_import_torch(tmp_path):
     build.build()
     copy_package(tmp_path, with_build=True)
-    result = run_copy(tmp_path, """
+    result = run_copy(
+        tmp_path,
+        """
         import sys
         import numpy as np
         from archhead_addon.splat import blender_render, kernel, scenes
@@ -78,5 +85,6 @@ def test_numpy_path_does_not_import_torch(tmp_path):
         assert r.alpha.max() > 0.9
         assert "torch" not in sys.modules, "torch was imported"
         print("ok")
-        """)
+        """,
+    )
     assert result.stdout.strip() == "ok", result.stderr

@@ -39,8 +39,9 @@ def kernel_grads(scene, weights, **kw):
 
 def reference_grads(scene, weights, **kw):
     params = [torch.tensor(a, dtype=torch.float64, requires_grad=True) for a in scene.gaussians()]
-    out = render_reference(*params, torch.tensor(scene.viewmat), torch.tensor(scene.K),
-                           scene.width, scene.height, **kw)
+    out = render_reference(
+        *params, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width, scene.height, **kw
+    )
     weighted_loss(*out, weights).backward()
     return [p.grad for p in params]
 
@@ -98,12 +99,19 @@ def test_gradients_through_sh_and_expected_depth():
     ref.append(torch.tensor(sh, dtype=torch.float64, requires_grad=True))
     centre = torch.linalg.inv(torch.tensor(scene.viewmat))[:3, 3]
     colors = sh_to_rgb_torch(3, ref[0] - centre, ref[4])
-    img = render_reference(*ref[:4], colors, torch.tensor(scene.viewmat), torch.tensor(scene.K),
-                           scene.width, scene.height)
+    img = render_reference(
+        *ref[:4],
+        colors,
+        torch.tensor(scene.viewmat),
+        torch.tensor(scene.K),
+        scene.width,
+        scene.height,
+    )
     depth = img.depth / img.alpha.clamp_min(1e-10)
     ((img.rgb * w_rgb).sum() + (img.alpha * w_alpha).sum() + (depth * w_depth).sum()).backward()
-    assert_grads_match([p.grad.double() for p in ours], [p.grad for p in ref],
-                       names=NAMES[:4] + ("sh",))
+    assert_grads_match(
+        [p.grad.double() for p in ours], [p.grad for p in ref], names=NAMES[:4] + ("sh",)
+    )
 
 
 def test_gradients_when_only_rgb_is_used():
@@ -115,5 +123,6 @@ def test_gradients_when_only_rgb_is_used():
     rgb, _, _ = splat_cpu(*ours, settings)
     (rgb.double() * w_rgb).sum().backward()
     no_weight = torch.zeros(24, 32)
-    assert_grads_match([p.grad.double() for p in ours],
-                       reference_grads(scene, (w_rgb, no_weight, no_weight)))
+    assert_grads_match(
+        [p.grad.double() for p in ours], reference_grads(scene, (w_rgb, no_weight, no_weight))
+    )

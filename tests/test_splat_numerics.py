@@ -25,8 +25,9 @@ def gaussians(means, log_scales=-30.0, logits=0.0, colors=(1.0, 0.5, 0.25), quat
         return np.broadcast_to(np.asarray(x, np.float64), (n, k)).copy()
 
     logits = np.broadcast_to(np.asarray(logits, np.float64), (n,))
-    return kernel.Gaussians.checked(means, rows(quats, 4), rows(log_scales, 3), logits,
-                                    rows(colors, 3))
+    return kernel.Gaussians.checked(
+        means, rows(quats, 4), rows(log_scales, 3), logits, rows(colors, 3)
+    )
 
 
 def render(g, width=5, height=5, cam=None, **kw):
@@ -90,8 +91,7 @@ def test_alpha_clamped_at_0p99():
     g = gaussians(ON_AXIS, log_scales=np.log(0.5), logits=50.0)  # opacity 1, covers the image
     (rgb, alpha, _), _ = render(g, background=tuple(bg))
     np.testing.assert_allclose(alpha[2, 2], 0.99, atol=1e-6)
-    np.testing.assert_allclose(rgb[2, 2], 0.99 * np.array([1.0, 0.5, 0.25]) + 0.01 * bg,
-                               atol=1e-6)
+    np.testing.assert_allclose(rgb[2, 2], 0.99 * np.array([1.0, 0.5, 0.25]) + 0.01 * bg, atol=1e-6)
 
 
 def test_samples_below_1_over_255_skipped():
@@ -139,8 +139,7 @@ def test_near_and_far_planes_cull():
 
 
 def test_gaussians_behind_or_at_the_camera_centre():
-    g = gaussians([(0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1e-3, 0.0, 0.0)], log_scales=0.0,
-                  logits=5.0)
+    g = gaussians([(0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1e-3, 0.0, 0.0)], log_scales=0.0, logits=5.0)
     (rgb, alpha, depth), ctx = render(g, background=(0.1, 0.2, 0.3))
     assert not alpha.any() and not depth.any()
     np.testing.assert_array_equal(rgb, np.broadcast_to(np.float32([0.1, 0.2, 0.3]), rgb.shape))
@@ -148,8 +147,9 @@ def test_gaussians_behind_or_at_the_camera_centre():
         assert np.isfinite(grad).all() and not grad.any()
 
 
-@pytest.mark.parametrize("log_scale", [-1e30, np.log(1e-8), np.log(1e4)],
-                         ids=["scale0", "scale1e-8", "scale1e4"])
+@pytest.mark.parametrize(
+    "log_scale", [-1e30, np.log(1e-8), np.log(1e4)], ids=["scale0", "scale1e-8", "scale1e4"]
+)
 def test_extreme_scales(log_scale):
     g = gaussians(ON_AXIS, log_scales=log_scale, logits=1.0)
     (rgb, alpha, depth), ctx = render(g)
@@ -170,8 +170,9 @@ def test_scale_ratio_1e4():
                       rng.uniform(0.8, 1.5, n)], -1)  # fmt: skip
     s = np.log(0.05)
     log_scales = np.stack([np.full(n, s), np.full(n, s + np.log(1e-4)), np.full(n, s)], -1)
-    g = gaussians(means, log_scales, rng.normal(1, 1, n), rng.uniform(0, 1, (n, 3)),
-                  rng.normal(size=(n, 4)))
+    g = gaussians(
+        means, log_scales, rng.normal(1, 1, n), rng.uniform(0, 1, (n, 3)), rng.normal(size=(n, 4))
+    )
     (_, alpha, _), ctx = render(g, 9, 9, camera(9, 9))
     assert alpha.max() > 0.5
     assert all(np.isfinite(x).all() for x in backward_ones(ctx))
@@ -200,8 +201,9 @@ def test_opacity_logits_saturate():
 
 
 def test_no_gaussians():
-    g = kernel.Gaussians.checked(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)),
-                                 np.zeros(0), np.zeros((0, 3)))
+    g = kernel.Gaussians.checked(
+        np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))
+    )
     (rgb, alpha, depth), ctx = render(g, 7, 3, camera(7, 3), background=(0.5, 0.25, 1.0))
     assert (rgb == np.float32([0.5, 0.25, 1.0])).all() and not alpha.any() and not depth.any()
     assert [x.shape for x in backward_ones(ctx)] == [(0, 3), (0, 4), (0, 3), (0,), (0, 3)]
@@ -243,8 +245,17 @@ def test_non_finite_inputs_rejected(name, bad):
     t = {k: torch.tensor(v, dtype=torch.float32) for k, v in arrays.items()}
     viewmat, K = camera()
     with pytest.raises(ValueError, match=name):
-        rasterization(t["means"], t["quats"], t["log_scales"], t["opacity_logits"], t["colors"],
-                      viewmat, K, 5, 5)
+        rasterization(
+            t["means"],
+            t["quats"],
+            t["log_scales"],
+            t["opacity_logits"],
+            t["colors"],
+            viewmat,
+            K,
+            5,
+            5,
+        )
 
 
 def test_non_finite_or_invalid_camera_rejected():

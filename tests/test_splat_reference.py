@@ -15,8 +15,9 @@ TOL = 1e-5
 
 def reference_image(scene, **kw):
     t = [torch.tensor(a, dtype=torch.float64) for a in scene.gaussians()]
-    return render_reference(*t, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width,
-                            scene.height, **kw)
+    return render_reference(
+        *t, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width, scene.height, **kw
+    )
 
 
 def kernel_image(scene, **kw):
@@ -58,8 +59,9 @@ def test_forward_matches_reference_antialiased():
 def test_torch_tile_renderer_matches_reference():
     scene = scenes.face_scene(300, width=40, height=36, seed=3)
     t = [torch.tensor(a, dtype=torch.float64) for a in scene.gaussians()]
-    tiles = render_tiles_torch(*t, torch.tensor(scene.viewmat), torch.tensor(scene.K),
-                               scene.width, scene.height)
+    tiles = render_tiles_torch(
+        *t, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width, scene.height
+    )
     ref = reference_image(scene)
     for a, b in zip(tiles, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-9)
@@ -90,13 +92,21 @@ def test_projection_matches_gsplat_torch_reference():
         settings = kernel.RasterSettings(viewmat, K, width, height, antialiased=antialiased)
         ours = kernel.project(g, settings)
         t = {k: torch.tensor(getattr(g, k), dtype=torch.float64) for k in g._fields}
-        covars, _ = _quat_scale_to_covar_preci(t["quats"], t["log_scales"].exp(),
-                                               compute_preci=False)
+        covars, _ = _quat_scale_to_covar_preci(
+            t["quats"], t["log_scales"].exp(), compute_preci=False
+        )
         radii, means2d, depths, conics, comp = _fully_fused_projection(
-            t["means"], covars, torch.tensor(viewmat[None]), torch.tensor(K[None]), width,
-            height, calc_compensations=True)
-        radii, means2d, depths, conics, comp = (x[0].numpy() for x in
-                                                (radii, means2d, depths, conics, comp))
+            t["means"],
+            covars,
+            torch.tensor(viewmat[None]),
+            torch.tensor(K[None]),
+            width,
+            height,
+            calc_compensations=True,
+        )
+        radii, means2d, depths, conics, comp = (
+            x[0].numpy() for x in (radii, means2d, depths, conics, comp)
+        )
         ours_vis = ours.radii[:, 0] > 0
         theirs_vis = (radii > 0).all(-1)
         # ours also culls by opacity; its opacity-aware box is never larger than 3.33 sigma
@@ -104,8 +114,12 @@ def test_projection_matches_gsplat_torch_reference():
         assert (ours.radii[ours_vis] <= radii[ours_vis]).all()
         np.testing.assert_allclose(ours.means2d[ours_vis], means2d[ours_vis], rtol=1e-5, atol=1e-5)
         np.testing.assert_allclose(ours.depths[ours_vis], depths[ours_vis], rtol=1e-5)
-        np.testing.assert_allclose(ours.conics[ours_vis], conics[ours_vis], rtol=1e-5,
-                                   atol=1e-5 * np.abs(conics[ours_vis]).max())
+        np.testing.assert_allclose(
+            ours.conics[ours_vis],
+            conics[ours_vis],
+            rtol=1e-5,
+            atol=1e-5 * np.abs(conics[ours_vis]).max(),
+        )
         opacity = 1 / (1 + np.exp(-logits.astype(np.float64)))
         expected = opacity * (comp if antialiased else 1.0)
         np.testing.assert_allclose(ours.opacities[ours_vis], expected[ours_vis], rtol=1e-5)
@@ -121,7 +135,8 @@ def test_sh_matches_gsplat_and_numpy_matches_torch(degree):
     ours_np = sh_to_rgb_numpy(degree, dirs, coeffs)
     ours_t = sh_to_rgb_torch(degree, torch.tensor(dirs), torch.tensor(coeffs)).numpy()
     theirs = torch.clamp_min(
-        _spherical_harmonics(degree, torch.tensor(dirs), torch.tensor(coeffs)) + 0.5, 0.0)
+        _spherical_harmonics(degree, torch.tensor(dirs), torch.tensor(coeffs)) + 0.5, 0.0
+    )
     np.testing.assert_allclose(ours_np, ours_t, rtol=0, atol=1e-12)
     np.testing.assert_allclose(ours_np, theirs.numpy(), rtol=0, atol=1e-10)
 
@@ -131,13 +146,21 @@ def test_rasterization_cpu_path_matches_kernel_render():
     rng = np.random.default_rng(5)
     sh = rng.normal(0, 0.3, (500, 9, 3)).astype(np.float32)
     bg = (0.2, 0.4, 0.6)
-    out = rasterization(*(torch.tensor(a) for a in scene.gaussians()[:4]), torch.tensor(sh),
-                        scene.viewmat, scene.K, scene.width, scene.height, background=bg)
+    out = rasterization(
+        *(torch.tensor(a) for a in scene.gaussians()[:4]),
+        torch.tensor(sh),
+        scene.viewmat,
+        scene.K,
+        scene.width,
+        scene.height,
+        background=bg,
+    )
     assert out.rgb.shape == (40, 48, 3) and out.alpha.shape == out.depth.shape == (40, 48, 1)
     centre = np.linalg.inv(scene.viewmat)[:3, 3]
     colors = sh_to_rgb_numpy(2, scene.means.astype(np.float64) - centre, sh.astype(np.float64))
-    settings = kernel.RasterSettings(scene.viewmat, scene.K, scene.width, scene.height,
-                                     background=bg)
+    settings = kernel.RasterSettings(
+        scene.viewmat, scene.K, scene.width, scene.height, background=bg
+    )
     ref = kernel.render(*scene.gaussians()[:4], colors, settings)
     np.testing.assert_allclose(out.rgb.numpy(), ref.rgb, atol=1e-6)
     np.testing.assert_allclose(out.alpha.numpy()[..., 0], ref.alpha, atol=1e-6)

@@ -22,8 +22,10 @@ from archhead_addon.synthetic.trajectory import EXPRESSION_PEAKS, synthetic_sequ
 from archhead_addon.train.dataset import FrameDataset
 from archhead_addon.train.parts_mask import rasterize
 
+pytestmark = pytest.mark.slow
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = REPO_ROOT / "operators" / "synthetic_subject.py"
+SCRIPT = REPO_ROOT / "scripts" / "synthetic_subject.py"
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
 FPS = 25.0
 
@@ -106,9 +108,11 @@ def test_folder_writes_frame_and_mask_and_clears_an_earlier_run(tmp_path):
 def test_render_script_imports_only_bpy_and_numpy():
     """Blender's Python has numpy but neither torch nor Pillow."""
     pytest.importorskip("bpy")
-    code = (f"import sys; sys.path.insert(0, {str(SCRIPT.parent)!r}); import synthetic_subject; "
-            "extra = {'torch', 'PIL', 'OpenEXR', 'scipy'} & set(sys.modules); "
-            "assert not extra, extra")
+    code = (
+        "import sys; import archhead_blender.synthetic_subject; "
+        "extra = {'torch', 'PIL', 'OpenEXR', 'scipy'} & set(sys.modules); "
+        "assert not extra, extra"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
 
 
@@ -117,9 +121,26 @@ def rendered(tmp_path_factory):
     """6 frames at 48x48, 2 samples, through the script as Blender would run it."""
     pytest.importorskip("bpy")
     out = tmp_path_factory.mktemp("subject")
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--", "--out", str(out), "--frames", "6",
-                           "--size", "48", "--samples", "2", "--seed", "4"],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(SCRIPT),
+            "--",
+            "--out",
+            str(out),
+            "--frames",
+            "6",
+            "--size",
+            "48",
+            "--samples",
+            "2",
+            "--seed",
+            "4",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     return out, proc.stdout
 
@@ -149,8 +170,10 @@ def test_masks_match_the_tracked_camera(rendered):
         col, row = np.floor(project(v, seq.K[t], seq.w2c[t])).astype(int).T
         seen = (row >= 0) & (row < 48) & (col >= 0) & (col < 48)  # not the cut-off neck
         padded = np.pad(alpha, 1)
-        near = np.max([padded[1 + dr:49 + dr, 1 + dc:49 + dc] for dr in (-1, 0, 1)
-                       for dc in (-1, 0, 1)], axis=0)  # alpha within one pixel
+        near = np.max(
+            [padded[1 + dr : 49 + dr, 1 + dc : 49 + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1)],
+            axis=0,
+        )  # alpha within one pixel
         assert seen.mean() > 0.8 and near[row[seen], col[seen]].min() > 0
         assert (alpha[row[seen], col[seen]] > 0.5).mean() > 0.9  # rim vertices aside
         coverage = rasterize(v, model.faces, seq.K[t], seq.w2c[t], (48, 48))[0] >= 0

@@ -13,9 +13,21 @@ import torch
 from archhead_addon.io.errors import InputError
 from archhead_addon.io.torch_zip import load_torch_file
 
-DTYPES = [torch.float64, torch.float32, torch.float16, torch.int64, torch.int32, torch.int16,
-          torch.int8, torch.uint8, torch.bool, torch.complex64, torch.complex128, torch.uint16,
-          torch.uint32]
+DTYPES = [
+    torch.float64,
+    torch.float32,
+    torch.float16,
+    torch.int64,
+    torch.int32,
+    torch.int16,
+    torch.int8,
+    torch.uint8,
+    torch.bool,
+    torch.complex64,
+    torch.complex128,
+    torch.uint16,
+    torch.uint32,
+]
 
 
 def _save(obj, path, **kwargs):
@@ -49,9 +61,14 @@ def test_bfloat16_becomes_float32(tmp_path):
 def test_views_strides_offsets_and_shared_storage(tmp_path):
     x = torch.arange(60, dtype=torch.float32).reshape(3, 4, 5)
     views = {
-        "transpose": x.transpose(0, 2), "slice": x[1:, ::2, 3:], "row": x[2, 1],
-        "expanded": torch.arange(3.0)[:, None].expand(3, 4), "scalar": x[1, 2, 3],
-        "empty": x[:, :0], "whole": x, "flipped_copy": x.flip(0),
+        "transpose": x.transpose(0, 2),
+        "slice": x[1:, ::2, 3:],
+        "row": x[2, 1],
+        "expanded": torch.arange(3.0)[:, None].expand(3, 4),
+        "scalar": x[1, 2, 3],
+        "empty": x[:, :0],
+        "whole": x,
+        "flipped_copy": x.flip(0),
     }
     assert views["slice"].storage_offset() > 0 and not views["transpose"].is_contiguous()
     out = load_torch_file(_save(views, tmp_path / "views.pt"))
@@ -63,8 +80,10 @@ def test_views_strides_offsets_and_shared_storage(tmp_path):
 
 def test_nested_containers_numpy_parameters_and_metadata(tmp_path):
     obj = {
-        "flame": {"exp": np.arange(6, dtype=np.float32).reshape(1, 6),
-                  "shape": torch.ones(1, 4, requires_grad=True)},
+        "flame": {
+            "exp": np.arange(6, dtype=np.float32).reshape(1, 6),
+            "shape": torch.ones(1, 4, requires_grad=True),
+        },
         "list": [torch.tensor([1, 2]), (np.int64(3), "text", None, 2.5)],
         "param": torch.nn.Parameter(torch.full((2, 2), 7.0)),
         "ordered": torch.nn.Linear(2, 1).state_dict(),
@@ -138,8 +157,10 @@ class _Tensor:
         self.size, self.stride = size, stride
 
     def __reduce__(self):
-        return (torch._utils._rebuild_tensor_v2,
-                (_Storage(), 0, self.size, self.stride, False, collections.OrderedDict()))
+        return (
+            torch._utils._rebuild_tensor_v2,
+            (_Storage(), 0, self.size, self.stride, False, collections.OrderedDict()),
+        )
 
 
 class _TensorPickler(pickle.Pickler):
@@ -147,11 +168,14 @@ class _TensorPickler(pickle.Pickler):
         return ("storage", torch.FloatStorage, "0", "cpu", 4) if isinstance(obj, _Storage) else None
 
 
-@pytest.mark.parametrize("size,stride,problem", [
-    ((4096,), (1,), "reaches element 4095 of a storage of 4 elements"),
-    ((2,), (5,), "reaches element 5 of a storage of 4 elements"),
-    ((1 << 20, 1 << 20), (0, 0), "larger than this reader accepts"),
-])
+@pytest.mark.parametrize(
+    "size,stride,problem",
+    [
+        ((4096,), (1,), "reaches element 4095 of a storage of 4 elements"),
+        ((2,), (5,), "reaches element 5 of a storage of 4 elements"),
+        ((1 << 20, 1 << 20), (0, 0), "larger than this reader accepts"),
+    ],
+)
 def test_hostile_tensor_layouts_are_refused(tmp_path, size, stride, problem):
     buf = io.BytesIO()
     _TensorPickler(buf, protocol=2).dump({"t": _Tensor(size, stride)})

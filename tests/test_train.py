@@ -15,7 +15,10 @@ from archhead_addon.flame.model import load_model
 from archhead_addon.train.__main__ import main
 from archhead_addon.train.config import TrainConfig
 from archhead_addon.train.dataset import FrameDataset
-from archhead_addon.train.loop import STATE_FILE, Trainer, frames_on_device, load_state
+from archhead_addon.train.loop import Trainer, frames_on_device, load_state
+from archhead_addon.train.run_folder import RunFolder
+
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -36,15 +39,30 @@ def dataset(subject, model):
 def trainer(dataset, model, out, **changes) -> Trainer:
     config = TrainConfig.from_dict({**TINY_CONFIG, **changes})
     frames = frames_on_device(dataset, torch.device("cpu"))
-    return Trainer.create(config, frames, model, dataset.sequence.shape[0], out,
-                          dataset.background, torch.device("cpu"))
+    return Trainer.create(
+        config,
+        frames,
+        model,
+        dataset.sequence.shape[0],
+        out,
+        dataset.background,
+        torch.device("cpu"),
+    )
 
 
-def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(subject, dataset, tmp_path,
-                                                              capsys):
+def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(subject, dataset, tmp_path, capsys):
     out = tmp_path / "run"
-    rc = main(["--data", str(subject), "--out", str(out), "--config",
-               str(write_config(tmp_path / "tiny.json")), "--progress-json"])
+    rc = main(
+        [
+            "--data",
+            str(subject),
+            "--out",
+            str(out),
+            "--config",
+            str(write_config(tmp_path / "tiny.json")),
+            "--progress-json",
+        ]
+    )
     assert rc == 0
     events = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert events[0]["event"] == "start" and events[0]["renderer"] == "cpu"
@@ -60,15 +78,20 @@ def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(subject, dataset, t
     assert all(e["lods"] == [0.0, 1.0] for e in steps[24:])  # stage 2, two levels: the ends
     assert ("lpips" in steps[0]["loss"]) and ("lpips" not in steps[1]["loss"])  # every 2nd
 
-    runtime = AvatarRuntime.load(out / "avatar.npz")
+    runtime = AvatarRuntime.load(RunFolder(out).avatar)
     item = dataset[0]
-    frames = {lod: render_frame(runtime, lod, item["codes"], item["K"], item["w2c"],
-                                dataset.size, dataset.background) for lod in (0.0, 1.0)}
+    frames = {
+        lod: render_frame(
+            runtime, lod, item["codes"], item["K"], item["w2c"], dataset.size, dataset.background
+        )
+        for lod in (0.0, 1.0)
+    }
     assert frames[0.0].gaussians > frames[1.0].gaussians > 0
     for frame in frames.values():
         assert np.isfinite(frame.rgb).all()
-        error = torch.nn.functional.huber_loss(torch.from_numpy(frame.rgb),
-                                               torch.from_numpy(item["image"]), delta=0.1)
+        error = torch.nn.functional.huber_loss(
+            torch.from_numpy(frame.rgb), torch.from_numpy(item["image"]), delta=0.1
+        )
         assert float(error) < 0.8 * np.mean(stage1[:4])  # the trained avatar, not the first
 
 
@@ -80,12 +103,15 @@ def test_stage_two_freezes_the_mapping_network(dataset, model, tmp_path):
     features = [p.detach().clone() for p in t.avatar.features.parameters()]
     t.train_step()
     t.train_step()
-    assert all(torch.equal(a, b) for a, b in zip(mapping, t.avatar.mapping.parameters(),
-                                                  strict=True))
-    assert not all(torch.equal(a, b) for a, b in zip(decoder, t.avatar.decoder.parameters(),
-                                                      strict=True))
-    assert not all(torch.equal(a, b) for a, b in zip(features, t.avatar.features.parameters(),
-                                                      strict=True))
+    assert all(
+        torch.equal(a, b) for a, b in zip(mapping, t.avatar.mapping.parameters(), strict=True)
+    )
+    assert not all(
+        torch.equal(a, b) for a, b in zip(decoder, t.avatar.decoder.parameters(), strict=True)
+    )
+    assert not all(
+        torch.equal(a, b) for a, b in zip(features, t.avatar.features.parameters(), strict=True)
+    )
 
 
 def test_schedule_lods_frames_and_learning_rate(dataset, model, tmp_path):
@@ -101,7 +127,7 @@ def test_schedule_lods_frames_and_learning_rate(dataset, model, tmp_path):
     assert sorted(t.frame_index(s) for s in range(n)) == list(range(n))  # an epoch
     final = TINY_CONFIG.get("lr_final_ratio", 0.1)
     assert t.learning_rate_factor(0) == 1.0 == t.learning_rate_factor(4)  # each stage restarts
-    assert t.learning_rate_factor(2) == pytest.approx(final ** 0.5)
+    assert t.learning_rate_factor(2) == pytest.approx(final**0.5)
     assert t.learning_rate_factor(104) == pytest.approx(final)
     one = trainer(dataset, model, tmp_path, stage1_steps=0, stage2_steps=10, lods_per_step=1)
     assert len({len(one.lods(s)) for s in range(10)}) == 1
@@ -118,22 +144,27 @@ def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
     for _ in range(4):
         first.train_step()
     first.save()
-    state = load_state(tmp_path / "b" / STATE_FILE)
+    state = load_state(RunFolder(tmp_path / "b").state)
     assert state["step"] == 4
     frames = frames_on_device(dataset, torch.device("cpu"))
-    resumed = Trainer.resume(state, tmp_path / "b", frames, model, dataset.background,
-                             torch.device("cpu"))
+    resumed = Trainer.resume(
+        state, tmp_path / "b", frames, model, dataset.background, torch.device("cpu")
+    )
     resumed.train_step()
     resumed.train_step()
-    for (name, a), b in zip(straight.avatar.state_dict().items(),
-                            resumed.avatar.state_dict().values(), strict=True):
+    for (name, a), b in zip(
+        straight.avatar.state_dict().items(), resumed.avatar.state_dict().values(), strict=True
+    ):
         assert torch.equal(a, b), name
 
     other = random_model()  # resuming with another FLAME model is refused by name
-    with pytest.raises(ValueError, match=f"started on the FLAME model '{model.model_id}', "
-                                         f"resumed with '{other.model_id}'"):
-        Trainer.resume(state, tmp_path / "b", frames, other, dataset.background,
-                       torch.device("cpu"))
+    with pytest.raises(
+        ValueError,
+        match=f"started on the FLAME model '{model.model_id}', resumed with '{other.model_id}'",
+    ):
+        Trainer.resume(
+            state, tmp_path / "b", frames, other, dataset.background, torch.device("cpu")
+        )
 
 
 def test_presets_load_and_bad_configs_are_named(tmp_path):
@@ -141,14 +172,20 @@ def test_presets_load_and_bad_configs_are_named(tmp_path):
     assert gpu.lods_per_step == 5 and (gpu.stage1_steps, gpu.stage2_steps) == (15000, 30000)
     assert gpu.avatar_config(100).levels == (256, 128, 64)
     assert (gpu.loss.parts, gpu.loss.lpips, gpu.loss.offset, gpu.loss.scale) == (
-        20.0, 0.05, 0.001, 0.5)
+        20.0,
+        0.05,
+        0.001,
+        0.5,
+    )
     assert cpu.resolution == 256 and cpu.device == "auto"
     assert TrainConfig.from_dict(json.loads(cpu.to_json())) == cpu
-    for bad, message in (({"stage1_step": 3}, "stage1_step"),
-                         ({"loss": {"lpip": 1}}, "lpip"),
-                         ({"avatar": {"s_maxx": 3}}, "s_maxx"),
-                         ({"avatar": {"s_min": 300}}, "s_min"),
-                         ({"resolution": 16}, "32")):
+    for bad, message in (
+        ({"stage1_step": 3}, "stage1_step"),
+        ({"loss": {"lpip": 1}}, "lpip"),
+        ({"avatar": {"s_maxx": 3}}, "s_maxx"),
+        ({"avatar": {"s_min": 300}}, "s_min"),
+        ({"resolution": 16}, "32"),
+    ):
         path = tmp_path / "bad.json"
         path.write_text(json.dumps(bad))
         with pytest.raises(ValueError, match=message):
@@ -160,13 +197,25 @@ def test_cli_refuses_to_overwrite_or_resume_nothing(subject, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2
     assert "nothing to resume" in capsys.readouterr().err
-    (out / STATE_FILE).parent.mkdir(parents=True)
-    (out / STATE_FILE).write_bytes(b"")
+    RunFolder(out).state.parent.mkdir(parents=True)
+    RunFolder(out).state.write_bytes(b"")
     assert main(["--data", str(subject), "--out", str(out), "--config", config]) == 2
     assert "--resume" in capsys.readouterr().err
     assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2
     assert "unreadable training state" in capsys.readouterr().err
-    assert main(["--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "r2"),
-                 "--config", config, "--progress-json"]) == 2
+    assert (
+        main(
+            [
+                "--data",
+                str(tmp_path / "nowhere"),
+                "--out",
+                str(tmp_path / "r2"),
+                "--config",
+                config,
+                "--progress-json",
+            ]
+        )
+        == 2
+    )
     error = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert error["event"] == "error" and "nowhere" in error["message"]

@@ -10,9 +10,10 @@ from training_subject import tiny_subject, write_config
 from archhead_addon.flame.model import load_model
 from archhead_addon.train.__main__ import main as train_main
 from archhead_addon.train.dataset import FrameDataset
-from archhead_addon.train.loop import STATE_FILE, Trainer, frames_on_device, load_state
+from archhead_addon.train.loop import Trainer, frames_on_device, load_state
 from archhead_addon.train.probe import main as probe_main
 from archhead_addon.train.probe import widen
+from archhead_addon.train.run_folder import RunFolder
 
 
 @pytest.fixture(scope="module")
@@ -24,18 +25,21 @@ def subject(tmp_path_factory):
 def run(subject, tmp_path_factory):
     folder = tmp_path_factory.mktemp("probe")
     config = write_config(folder / "tiny.json")
-    assert train_main(["--data", str(subject), "--out", str(folder / "run"),
-                       "--config", str(config)]) == 0
+    assert (
+        train_main(["--data", str(subject), "--out", str(folder / "run"), "--config", str(config)])
+        == 0
+    )
     return folder / "run"
 
 
 def test_widened_heads_decode_the_same_gaussians(subject, run):
     model = load_model()
-    state = load_state(run / STATE_FILE)
+    state = load_state(RunFolder(run).state)
     dataset = FrameDataset(subject, 48, model, split="train")
     frames = frames_on_device(dataset, torch.device("cpu"))
-    narrow = Trainer.resume(state, run, frames, model, dataset.background,
-                            torch.device("cpu")).avatar
+    narrow = Trainer.resume(
+        state, run, frames, model, dataset.background, torch.device("cpu")
+    ).avatar
     wide = widen(narrow, 24, 40)
     assert (wide.config.hidden, wide.config.colour_hidden) == (24, 40)
     assert sum(p.numel() for p in wide.parameters()) > sum(p.numel() for p in narrow.parameters())
@@ -43,16 +47,30 @@ def test_widened_heads_decode_the_same_gaussians(subject, run):
         for lod in (0.0, 0.6, 1.0):
             a, b = narrow(lod, **frames[1].codes), wide(lod, **frames[1].codes)
             for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
-                torch.testing.assert_close(getattr(b, name), getattr(a, name), atol=1e-6,
-                                           rtol=0)
+                torch.testing.assert_close(getattr(b, name), getattr(a, name), atol=1e-6, rtol=0)
     with pytest.raises(ValueError, match="cannot narrow"):
         widen(narrow, 8, 16)
 
 
 def test_probe_trains_its_levels_and_leaves_the_run_alone(subject, run, capsys):
     before = {p.name: p.read_bytes() for p in run.iterdir()}
-    rc = probe_main(["--run", str(run), "--data", str(subject), "--levels", "1", "--frame", "0",
-                     "--steps", "40", "--every", "20", "--no-regularisers"])
+    rc = probe_main(
+        [
+            "--run",
+            str(run),
+            "--data",
+            str(subject),
+            "--levels",
+            "1",
+            "--frame",
+            "0",
+            "--steps",
+            "40",
+            "--every",
+            "20",
+            "--no-regularisers",
+        ]
+    )
     assert rc == 0
     lines = capsys.readouterr().out.splitlines()
     assert "levels [1.0], 40 steps, 1 training frame(s), lr x 1.0, no regularisers" in lines[0]
@@ -67,9 +85,11 @@ def test_probe_trains_its_levels_and_leaves_the_run_alone(subject, run, capsys):
 def test_probe_names_bad_input(subject, run, tmp_path, capsys):
     assert probe_main(["--run", str(tmp_path), "--data", str(subject), "--steps", "0"]) == 2
     err = capsys.readouterr().err
-    assert str(tmp_path) in err and STATE_FILE in err
-    assert probe_main(["--run", str(run), "--data", str(subject), "--steps", "0",
-                       "--frame", "99"]) == 2
+    assert str(tmp_path) in err and RunFolder(tmp_path).state.name in err
+    assert (
+        probe_main(["--run", str(run), "--data", str(subject), "--steps", "0", "--frame", "99"])
+        == 2
+    )
     assert "--frame 99: the run has 7 training frames" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         probe_main(["--run", str(run), "--data", str(subject), "--levels", "1.5"])

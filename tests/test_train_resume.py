@@ -10,7 +10,10 @@ import pytest
 from training_subject import REPO_ROOT, tiny_subject, write_config
 
 from archhead_addon.avatar.runtime import AvatarRuntime
-from archhead_addon.train.loop import STATE_FILE, load_state
+from archhead_addon.train.loop import load_state
+from archhead_addon.train.run_folder import RunFolder
+
+pytestmark = pytest.mark.slow
 
 TOTAL = 40
 
@@ -21,13 +24,23 @@ def subject(tmp_path_factory):
 
 
 def command(subject, out, *extra):
-    return [sys.executable, "-m", "archhead_addon.train", "--data", str(subject), "--out",
-            str(out), "--progress-json", *extra]
+    return [
+        sys.executable,
+        "-m",
+        "archhead_addon.train",
+        "--data",
+        str(subject),
+        "--out",
+        str(out),
+        "--progress-json",
+        *extra,
+    ]
 
 
 def start(cmd):
-    return subprocess.Popen(cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    return subprocess.Popen(
+        cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
 
 
 def events_until(proc, done) -> list[dict]:
@@ -41,8 +54,9 @@ def events_until(proc, done) -> list[dict]:
 
 
 def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path):
-    config = write_config(tmp_path / "c.json", stage1_steps=TOTAL - 10, stage2_steps=10,
-                          checkpoint_every=3)
+    config = write_config(
+        tmp_path / "c.json", stage1_steps=TOTAL - 10, stage2_steps=10, checkpoint_every=3
+    )
     out = tmp_path / "run"
     proc = start(command(subject, out, "--config", str(config)))
     try:
@@ -52,24 +66,30 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path
         proc.kill()  # SIGKILL, wherever it is: mid-step or writing the next checkpoint
         proc.wait()
     killed_at = seen[-1]["step"]
-    state = load_state(out / STATE_FILE)
+    state = load_state(RunFolder(out).state)
     assert state["step"] % 3 == 0 and killed_at - 3 <= state["step"] <= killed_at
-    AvatarRuntime.load(out / "avatar.npz").decode(0.0)  # the checkpoint is whole
+    AvatarRuntime.load(RunFolder(out).avatar).decode(0.0)  # the checkpoint is whole
 
-    done = subprocess.run(command(subject, out, "--resume"), cwd=REPO_ROOT,
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        command(subject, out, "--resume"),
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     events = [json.loads(line) for line in done.stdout.splitlines()]
     assert events[0]["event"] == "start" and events[0]["step"] == state["step"]
     steps = [e["step"] for e in events if e["event"] == "step"]
     assert steps == list(range(state["step"] + 1, TOTAL + 1))
-    assert events[-1]["event"] == "done" and load_state(out / STATE_FILE)["step"] == TOTAL
+    assert events[-1]["event"] == "done" and load_state(RunFolder(out).state)["step"] == TOTAL
     assert "resumed at step" in done.stderr
 
 
 def test_ctrl_c_saves_and_exits(subject, tmp_path):
-    config = write_config(tmp_path / "c.json", stage1_steps=TOTAL, stage2_steps=0,
-                          checkpoint_every=1000)
+    config = write_config(
+        tmp_path / "c.json", stage1_steps=TOTAL, stage2_steps=0, checkpoint_every=1000
+    )
     out = tmp_path / "run"
     proc = start(command(subject, out, "--config", str(config)))
     try:
@@ -83,7 +103,10 @@ def test_ctrl_c_saves_and_exits(subject, tmp_path):
     assert "Traceback" not in err
     last = events[-1]
     assert last["event"] == "interrupted" and 2 <= last["step"] < TOTAL
-    assert events[-2] == {"event": "checkpoint", "step": last["step"],
-                          "avatar": str(out / "avatar.npz")}
-    assert load_state(out / STATE_FILE)["step"] == last["step"]
-    AvatarRuntime.load(out / "avatar.npz").decode(1.0)
+    assert events[-2] == {
+        "event": "checkpoint",
+        "step": last["step"],
+        "avatar": str(RunFolder(out).avatar),
+    }
+    assert load_state(RunFolder(out).state)["step"] == last["step"]
+    AvatarRuntime.load(RunFolder(out).avatar).decode(1.0)

@@ -12,8 +12,10 @@ def _write_obj(path, model, faces=None):
     faces = model.faces if faces is None else faces
     lines = [f"v {x} {y} {z}" for x, y, z in model.v_template]
     lines += [f"vt {u!r} {v!r}" for u, v in model.uv]
-    lines += ["f " + " ".join(f"{a + 1}/{b + 1}" for a, b in zip(f, ft, strict=True))
-              for f, ft in zip(faces, model.uv_faces, strict=True)]
+    lines += [
+        "f " + " ".join(f"{a + 1}/{b + 1}" for a, b in zip(f, ft, strict=True))
+        for f, ft in zip(faces, model.uv_faces, strict=True)
+    ]
     path.write_text("\n".join(lines) + "\n")
     return path
 

@@ -39,8 +39,9 @@ def test_position_map_of_a_flat_mesh_is_the_texel_centre_and_torch_agrees():
     np.testing.assert_allclose(pos[:, :2], 0.3 * _centres(table), atol=1e-12)
     np.testing.assert_allclose(pos[:, 2], 0.05)
     batch = np.stack([verts, 2 * verts])
-    pos_t = position_map(torch.from_numpy(batch), torch.from_numpy(vert_idx),
-                         torch.from_numpy(table.bary))
+    pos_t = position_map(
+        torch.from_numpy(batch), torch.from_numpy(vert_idx), torch.from_numpy(table.bary)
+    )
     np.testing.assert_allclose(pos_t.numpy(), np.stack([pos, 2 * pos]), atol=1e-12)
     scale = face_texel_scale(verts, model.uv_faces, model.uv, model.uv_faces)
     np.testing.assert_allclose(scale, 0.3)  # metres per UV unit of a map scaled by 0.3

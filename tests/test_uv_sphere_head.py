@@ -13,9 +13,16 @@ U_RANGE, V_RANGE = (0.02, 0.62), (0.02, 0.98)
 RADII = np.array([0.08, 0.11, 0.10])
 
 
-def sphere_head(n_lat: int = 40, n_lon: int = 64, n_shape: int = 10, n_expr: int = 100,
-                with_uv: bool = True, lips: bool = True, uv_scale: float = 1.0,
-                seed: int = 0) -> FlameModel:
+def sphere_head(
+    n_lat: int = 40,
+    n_lon: int = 64,
+    n_shape: int = 10,
+    n_expr: int = 100,
+    with_uv: bool = True,
+    lips: bool = True,
+    uv_scale: float = 1.0,
+    seed: int = 0,
+) -> FlameModel:
     """lips=False: no lip rings, so no teeth; uv_scale shrinks the island towards (0, 0)
     (fewer texels, for tests that decode many resolutions)."""
     rng = np.random.default_rng(seed)
@@ -26,24 +33,35 @@ def sphere_head(n_lat: int = 40, n_lon: int = 64, n_shape: int = 10, n_expr: int
     v = (v * RADII).reshape(-1, 3)
     r, c = np.meshgrid(np.arange(n_lat), np.arange(n_lon), indexing="ij")
     a, b = r * n_lon + c, r * n_lon + (c + 1) % n_lon
-    faces = np.concatenate([np.stack([a, a + n_lon, b], -1).reshape(-1, 3),
-                            np.stack([b, a + n_lon, b + n_lon], -1).reshape(-1, 3)])
+    faces = np.concatenate(
+        [
+            np.stack([a, a + n_lon, b], -1).reshape(-1, 3),
+            np.stack([b, a + n_lon, b + n_lon], -1).reshape(-1, 3),
+        ]
+    )
     at, bt = r * (n_lon + 1) + c, r * (n_lon + 1) + c + 1  # UV grid has a seam column
-    ft = np.concatenate([np.stack([at, at + n_lon + 1, bt], -1).reshape(-1, 3),
-                         np.stack([bt, at + n_lon + 1, bt + n_lon + 1], -1).reshape(-1, 3)])
-    uu, vv = np.meshgrid(np.linspace(*U_RANGE, n_lon + 1), np.linspace(V_RANGE[1], V_RANGE[0],
-                                                                       n_lat + 1))
+    ft = np.concatenate(
+        [
+            np.stack([at, at + n_lon + 1, bt], -1).reshape(-1, 3),
+            np.stack([bt, at + n_lon + 1, bt + n_lon + 1], -1).reshape(-1, 3),
+        ]
+    )
+    uu, vv = np.meshgrid(
+        np.linspace(*U_RANGE, n_lon + 1), np.linspace(V_RANGE[1], V_RANGE[0], n_lat + 1)
+    )
     vt = uv_scale * np.stack([uu, vv], -1).reshape(-1, 2)
 
     mouth_row = n_lat // 2 + 4
     front = np.arange(n_lon // 2 - 5, n_lon // 2 + 6)  # +-5 columns around lon = 0
     eye_at = [np.array([s * 0.03, 0.03, 0.0]) for s in (1, -1)]
-    eye_at = [e + [0, 0, RADII[2] * np.sqrt(1 - (e[0] / RADII[0]) ** 2 - (e[1] / RADII[1]) ** 2)]
-              for e in eye_at]
+    eye_at = [
+        e + [0, 0, RADII[2] * np.sqrt(1 - (e[0] / RADII[0]) ** 2 - (e[1] / RADII[1]) ** 2)]
+        for e in eye_at
+    ]
     jreg = np.zeros((5, len(v)))
     jreg[0] = 1
-    jreg[1, n_lat * n_lon:] = 1  # neck: the bottom ring
-    jreg[2, mouth_row * n_lon:(mouth_row + 1) * n_lon] = 1  # jaw: the mouth ring's centre
+    jreg[1, n_lat * n_lon :] = 1  # neck: the bottom ring
+    jreg[2, mouth_row * n_lon : (mouth_row + 1) * n_lon] = 1  # jaw: the mouth ring's centre
     for j, e in ((3, eye_at[0]), (4, eye_at[1])):
         jreg[j, np.argsort(np.linalg.norm(v - e, axis=1))[:4]] = 1
     jreg /= jreg.sum(1, keepdims=True)
@@ -68,14 +86,20 @@ def sphere_head(n_lat: int = 40, n_lon: int = 64, n_shape: int = 10, n_expr: int
     field = np.sin(v @ freq.T + phase)  # (V, n_dirs)
     shapedirs = amp * field[:, None, :] * direction.T[None]
     arrays = {
-        "v_template": v, "f": faces, "shapedirs": shapedirs,
-        "posedirs": 1e-4 * rng.normal(size=(len(v), 3, 36)), "J_regressor": jreg,
-        "weights": w, "kintree_table": np.array([[4294967295, 0, 1, 1, 1], [0, 1, 2, 3, 4]]),
-        "n_shape": np.int64(n_shape), "model_id": np.str_(f"sphere-head-{n_lat}x{n_lon}"),
+        "v_template": v,
+        "f": faces,
+        "shapedirs": shapedirs,
+        "posedirs": 1e-4 * rng.normal(size=(len(v), 3, 36)),
+        "J_regressor": jreg,
+        "weights": w,
+        "kintree_table": np.array([[4294967295, 0, 1, 1, 1], [0, 1, 2, 3, 4]]),
+        "n_shape": np.int64(n_shape),
+        "model_id": np.str_(f"sphere-head-{n_lat}x{n_lon}"),
     }
     if lips:
-        arrays.update(lip_ring_upper=mouth_row * n_lon + front,
-                      lip_ring_lower=(mouth_row + 1) * n_lon + front)
+        arrays.update(
+            lip_ring_upper=mouth_row * n_lon + front, lip_ring_lower=(mouth_row + 1) * n_lon + front
+        )
     if with_uv:
         arrays.update(vt=vt, ft=ft)
     return model_from_arrays(arrays, source="sphere-head")

@@ -14,8 +14,9 @@ import argparse
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from ..timing import time_calls
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 PAPER_COUNTS = (45876, 2829)  # Table 3 of the paper: Gaussians at l = 0 and l = 1
@@ -40,24 +41,20 @@ def count_table(raster, config, step: float = 0.05) -> list[tuple[float, int, in
 
 def _timed(fn, repeats: int) -> tuple[float, float]:
     """(median, min) milliseconds of fn() after one warm-up call."""
-    import numpy as np
-
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times)), 1e3 * min(times)
+    timing = time_calls(fn, repeats, warmup=1)
+    return timing.median_ms, timing.min_ms
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", help="FLAME model file (default: the built-in model)")
     parser.add_argument("--uv-obj", help="FLAME 2020 head_template_mesh.obj for its UVs")
-    parser.add_argument("--xatlas", action="store_true",
-                        help="drop the model's own UVs and use an xatlas layout (as for FLAME "
-                             "2023 Open, which ships none)")
+    parser.add_argument(
+        "--xatlas",
+        action="store_true",
+        help="drop the model's own UVs and use an xatlas layout (as for FLAME "
+        "2023 Open, which ships none)",
+    )
     parser.add_argument("--repeats", type=int, default=15)
     args = parser.parse_args(argv)
 
@@ -73,49 +70,63 @@ def main(argv=None) -> None:
         model = model.replace(uv=None, uv_faces=None)
     avatar = ArchHeadAvatar.create(model, uv_obj=args.uv_obj)
     rows = count_table(avatar.raster, avatar.config)
-    print(f"## Gaussians per level of detail ({avatar.mesh.model_id}, "
-          f"{avatar.mesh.n_verts} vertices, {len(avatar.mesh.faces)} faces)\n")
+    print(
+        f"## Gaussians per level of detail ({avatar.mesh.model_id}, "
+        f"{avatar.mesh.n_verts} vertices, {len(avatar.mesh.faces)} faces)\n"
+    )
     print("| l | S | Gaussians | of l = 0 |\n|---:|---:|---:|---:|")
     for lod, size, count in rows:
         print(f"| {lod:.2f} | {size} | {count:,} | {100 * count / rows[0][2]:.1f} % |")
     counts = [r[2] for r in rows]
     monotonic = all(a > b for a, b in zip(counts, counts[1:], strict=False))
-    print(f"\ncount(l=1) / count(l=0) = {counts[-1]:,} / {counts[0]:,} = "
-          f"{100 * counts[-1] / counts[0]:.2f} %; the paper: {PAPER_COUNTS[1]:,} / "
-          f"{PAPER_COUNTS[0]:,} = {100 * PAPER_COUNTS[1] / PAPER_COUNTS[0]:.2f} %; "
-          f"falls strictly with l: {'yes' if monotonic else 'NO'}\n")
+    print(
+        f"\ncount(l=1) / count(l=0) = {counts[-1]:,} / {counts[0]:,} = "
+        f"{100 * counts[-1] / counts[0]:.2f} %; the paper: {PAPER_COUNTS[1]:,} / "
+        f"{PAPER_COUNTS[0]:,} = {100 * PAPER_COUNTS[1] / PAPER_COUNTS[0]:.2f} %; "
+        f"falls strictly with l: {'yes' if monotonic else 'NO'}\n"
+    )
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "avatar.npz"
         save_avatar(path, avatar)
         runtime = AvatarRuntime.load(path, flame=model)
     rng = np.random.default_rng(0)
-    codes = {"expr": rng.normal(size=model.n_expr), "jaw": [0.2, 0, 0],
-             "neck": [0.1, 0.2, 0], "eyes": np.zeros(6), "rotation": [0, 0.3, 0],
-             "translation": [0, 0, 0.5]}
+    codes = {
+        "expr": rng.normal(size=model.n_expr),
+        "jaw": [0.2, 0, 0],
+        "neck": [0.1, 0.2, 0],
+        "eyes": np.zeros(6),
+        "rotation": [0, 0.3, 0],
+        "translation": [0, 0, 0.5],
+    }
     print(f"## Numpy decode, 2 threads, median (min) of {args.repeats} after one warm-up\n")
-    print("| l | S | Gaussians | first call ms (builds the S cache) | fp32 ms | fp16 ms "
-          "| fp16 max error |")
+    print(
+        "| l | S | Gaussians | first call ms (builds the S cache) | fp32 ms | fp16 ms "
+        "| fp16 max error |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|")
     fp32 = {}
     for lod in (0.0, 0.25, 0.5, 0.75, 1.0):
         size = runtime.resolution(lod)
-        start = time.perf_counter()
-        runtime.decode(lod, **codes)
-        build = 1e3 * (time.perf_counter() - start)
+        build = time_calls(lambda lod=lod: runtime.decode(lod, **codes), 1).min_ms
         fp32[lod] = _timed(lambda lod=lod: runtime.decode(lod, **codes), args.repeats)
-        fp16 = _timed(lambda lod=lod: runtime.decode(lod, precision="fp16", **codes),
-                      args.repeats)
+        fp16 = _timed(lambda lod=lod: runtime.decode(lod, precision="fp16", **codes), args.repeats)
         err = max(runtime.precision_error(lod, **codes).values())
-        print(f"| {lod:.2f} | {size} | {runtime.raster.table(size).count:,} | {build:.0f} | "
-              f"{fp32[lod][0]:.1f} ({fp32[lod][1]:.1f}) | {fp16[0]:.1f} ({fp16[1]:.1f}) | "
-              f"{err:.1e} |")
+        print(
+            f"| {lod:.2f} | {size} | {runtime.raster.table(size).count:,} | {build:.0f} | "
+            f"{fp32[lod][0]:.1f} ({fp32[lod][1]:.1f}) | {fp16[0]:.1f} ({fp16[1]:.1f}) | "
+            f"{err:.1e} |"
+        )
     errors = runtime.precision_error(0.0, **codes)
-    print("\nfp16 - fp32 at l = 0, largest absolute difference: "
-          + ", ".join(f"{k} {v:.1e}" for k, v in errors.items()))
-    print(f"LOD 0 / LOD 1 decode time (fp32 medians): {fp32[0.0][0] / fp32[1.0][0]:.1f}x; "
-          f"goal LOD 0 < 150 ms: {'met' if fp32[0.0][0] < 150 else 'MISSED'}, "
-          f"LOD 1 < 20 ms: {'met' if fp32[1.0][0] < 20 else 'MISSED'}")
+    print(
+        "\nfp16 - fp32 at l = 0, largest absolute difference: "
+        + ", ".join(f"{k} {v:.1e}" for k, v in errors.items())
+    )
+    print(
+        f"LOD 0 / LOD 1 decode time (fp32 medians): {fp32[0.0][0] / fp32[1.0][0]:.1f}x; "
+        f"goal LOD 0 < 150 ms: {'met' if fp32[0.0][0] < 150 else 'MISSED'}, "
+        f"LOD 1 < 20 ms: {'met' if fp32[1.0][0] < 20 else 'MISSED'}"
+    )
 
 
 if __name__ == "__main__":

@@ -9,12 +9,22 @@ from .model import ArchHeadAvatar
 
 
 def save_avatar(path, avatar: ArchHeadAvatar) -> None:
-    params = {k: v.detach().cpu().float().numpy() for k, v in avatar.state_dict().items()
-              if k != "identity_shape"}
-    write_checkpoint(path, AvatarCheckpoint(
-        config=avatar.config, model_id=avatar.base_model_id, uv=avatar.mesh.uv,
-        uv_faces=avatar.mesh.uv_faces,
-        identity_shape=avatar.identity_shape.detach().cpu().numpy(), params=params))
+    params = {
+        k: v.detach().cpu().float().numpy()
+        for k, v in avatar.state_dict().items()
+        if k != "identity_shape"
+    }
+    write_checkpoint(
+        path,
+        AvatarCheckpoint(
+            config=avatar.config,
+            model_id=avatar.base_model_id,
+            uv=avatar.mesh.uv,
+            uv_faces=avatar.mesh.uv_faces,
+            identity_shape=avatar.identity_shape.detach().cpu().numpy(),
+            params=params,
+        ),
+    )
 
 
 def load_avatar(path, flame=None, device="cpu") -> ArchHeadAvatar:

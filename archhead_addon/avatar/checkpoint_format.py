@@ -51,12 +51,16 @@ class AvatarCheckpoint:
 
 def write_checkpoint(path, ckpt: AvatarCheckpoint) -> None:
     _check_params(path, ckpt.config, ckpt.params)
-    arrays = {"format": np.str_(FORMAT), "format_version": np.int64(FORMAT_VERSION),
-              "config": np.str_(ckpt.config.to_json()), "model_id": np.str_(ckpt.model_id),
-              "uv_layout_id": np.str_(ckpt.uv_layout_id),
-              "uv": np.asarray(ckpt.uv, np.float64),
-              "uv_faces": np.asarray(ckpt.uv_faces, np.int64),
-              "identity_shape": np.asarray(ckpt.identity_shape, np.float32)}
+    arrays = {
+        "format": np.str_(FORMAT),
+        "format_version": np.int64(FORMAT_VERSION),
+        "config": np.str_(ckpt.config.to_json()),
+        "model_id": np.str_(ckpt.model_id),
+        "uv_layout_id": np.str_(ckpt.uv_layout_id),
+        "uv": np.asarray(ckpt.uv, np.float64),
+        "uv_faces": np.asarray(ckpt.uv_faces, np.int64),
+        "identity_shape": np.asarray(ckpt.identity_shape, np.float32),
+    }
     arrays.update({f"param/{k}": np.asarray(v, np.float32) for k, v in ckpt.params.items()})
     save_npz_atomic(path, **arrays)
 
@@ -69,11 +73,13 @@ def read_checkpoint(path) -> AvatarCheckpoint:
     try:
         z = np.load(path, allow_pickle=False)
     except _READ_ERRORS as exc:
-        raise InputError(path, None, f"not a readable checkpoint (truncated or not an npz: "
-                         f"{exc})") from exc
+        raise InputError(
+            path, None, f"not a readable checkpoint (truncated or not an npz: {exc})"
+        ) from exc
     if not hasattr(z, "files"):
         raise InputError(path, None, "an npy array, not an avatar checkpoint (npz)")
     with z:
+
         def get(key):
             if key not in z.files:
                 raise InputError(path, key, "missing")
@@ -86,25 +92,42 @@ def read_checkpoint(path) -> AvatarCheckpoint:
             raise InputError(path, "format", "not an ArchHead avatar checkpoint")
         version = get("format_version")
         if version.shape != () or version.dtype.kind not in "iu" or version != FORMAT_VERSION:
-            raise InputError(path, "format_version", f"format version {version}; this ArchHead "
-                             f"reads version {FORMAT_VERSION}")
+            raise InputError(
+                path,
+                "format_version",
+                f"format version {version}; this ArchHead reads version {FORMAT_VERSION}",
+            )
         try:
             config = AvatarConfig.from_json(str(get("config")))
         except (ValueError, json.JSONDecodeError) as exc:
             raise InputError(path, "config", f"invalid: {exc}") from exc
-        params = {k[len("param/"):]: get(k) for k in z.files if k.startswith("param/")}
-        ckpt = AvatarCheckpoint(config=config, model_id=str(get("model_id")), uv=get("uv"),
-                                uv_faces=get("uv_faces"), identity_shape=get("identity_shape"),
-                                params=params)
+        params = {k[len("param/") :]: get(k) for k in z.files if k.startswith("param/")}
+        ckpt = AvatarCheckpoint(
+            config=config,
+            model_id=str(get("model_id")),
+            uv=get("uv"),
+            uv_faces=get("uv_faces"),
+            identity_shape=get("identity_shape"),
+            params=params,
+        )
         stored_id = str(get("uv_layout_id"))
     _check_params(path, config, params)
-    if ckpt.uv.ndim != 2 or ckpt.uv.shape[1] != 2 or ckpt.uv_faces.ndim != 2 \
-            or ckpt.uv_faces.shape[1] != 3 or ckpt.uv_faces.min(initial=0) < 0 \
-            or ckpt.uv_faces.max(initial=0) >= len(ckpt.uv):
+    if (
+        ckpt.uv.ndim != 2
+        or ckpt.uv.shape[1] != 2
+        or ckpt.uv_faces.ndim != 2
+        or ckpt.uv_faces.shape[1] != 3
+        or ckpt.uv_faces.min(initial=0) < 0
+        or ckpt.uv_faces.max(initial=0) >= len(ckpt.uv)
+    ):
         raise InputError(path, "uv_faces", "not a (F,3) index array into uv (Vt,2)")
     if ckpt.uv_layout_id != stored_id:
-        raise InputError(path, "uv_layout_id", f"{stored_id} does not match the stored layout "
-                         f"({ckpt.uv_layout_id}); the file is damaged")
+        raise InputError(
+            path,
+            "uv_layout_id",
+            f"{stored_id} does not match the stored layout "
+            f"({ckpt.uv_layout_id}); the file is damaged",
+        )
     if ckpt.identity_shape.ndim != 1 or not np.isfinite(ckpt.identity_shape).all():
         raise InputError(path, "identity_shape", "expected a finite 1-D array")
     return ckpt
@@ -131,13 +154,21 @@ def checkpoint_mesh(ckpt: AvatarCheckpoint, flame=None, path=None) -> FlameModel
     was trained on, with teeth, carrying the checkpoint's UV layout."""
     base = flame if isinstance(flame, FlameModel) else load_model(flame)
     if base.model_id != ckpt.model_id:
-        raise InputError(path, "model_id", f"the avatar was trained on '{ckpt.model_id}', "
-                         f"the FLAME model given is '{base.model_id}'")
+        raise InputError(
+            path,
+            "model_id",
+            f"the avatar was trained on '{ckpt.model_id}', "
+            f"the FLAME model given is '{base.model_id}'",
+        )
     mesh = add_teeth(base)
     if len(ckpt.uv_faces) != len(mesh.faces):
-        raise InputError(path, "uv_faces", f"{len(ckpt.uv_faces)} UV faces for a mesh of "
-                         f"{len(mesh.faces)} faces")
+        raise InputError(
+            path, "uv_faces", f"{len(ckpt.uv_faces)} UV faces for a mesh of {len(mesh.faces)} faces"
+        )
     if len(ckpt.identity_shape) > base.n_shape:
-        raise InputError(path, "identity_shape", f"{len(ckpt.identity_shape)} values, the model "
-                         f"has {base.n_shape} identity components")
+        raise InputError(
+            path,
+            "identity_shape",
+            f"{len(ckpt.identity_shape)} values, the model has {base.n_shape} identity components",
+        )
     return mesh.replace(uv=ckpt.uv, uv_faces=ckpt.uv_faces)

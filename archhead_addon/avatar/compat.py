@@ -38,28 +38,39 @@ def check_head(ckpt: AvatarCheckpoint, head: HeadFacts, flame_model_id: str) -> 
     out = Compatibility()
     head_base = head.model_id.removesuffix(TEETH_SUFFIX)
     if head_base != ckpt.model_id:
-        out.errors.append(f"the avatar was trained on the model '{ckpt.model_id}', the head "
-                          f"was imported with '{head_base}'")
+        out.errors.append(
+            f"the avatar was trained on the model '{ckpt.model_id}', the head "
+            f"was imported with '{head_base}'"
+        )
     if flame_model_id != ckpt.model_id:
-        out.errors.append(f"the avatar needs the FLAME model '{ckpt.model_id}', the "
-                          f"preferences give '{flame_model_id}' (set ArchHead's FLAME model)")
+        out.errors.append(
+            f"the avatar needs the FLAME model '{ckpt.model_id}', the "
+            f"preferences give '{flame_model_id}' (set ArchHead's FLAME model)"
+        )
     if head.n_faces != len(ckpt.uv_faces):
-        out.errors.append(f"the head has {head.n_faces} faces, the avatar's UV layout "
-                          f"{len(ckpt.uv_faces)}")
+        out.errors.append(
+            f"the head has {head.n_faces} faces, the avatar's UV layout {len(ckpt.uv_faces)}"
+        )
     elif head.loop_uvs is not None:
         want = np.asarray(ckpt.uv, np.float64)[ckpt.uv_faces].reshape(-1, 2)
-        if head.loop_uvs.shape != want.shape or \
-                np.abs(head.loop_uvs - want).max() > UV_TOLERANCE:
-            out.errors.append(f"the head's UV map differs from the avatar's UV layout "
-                              f"({ckpt.uv_layout_id}): the avatar was trained with other UVs")
+        if head.loop_uvs.shape != want.shape or np.abs(head.loop_uvs - want).max() > UV_TOLERANCE:
+            out.errors.append(
+                f"the head's UV map differs from the avatar's UV layout "
+                f"({ckpt.uv_layout_id}): the avatar was trained with other UVs"
+            )
     if out.errors:
         return out
     n = min(len(head.identity), len(ckpt.identity_shape))
     if len(head.identity) != len(ckpt.identity_shape) or not np.allclose(
-            head.identity[:n], ckpt.identity_shape[:n], atol=1e-4):
-        out.warnings.append("the head's identity shape differs from the avatar's; the avatar "
-                            "decodes on the identity chosen in its settings")
+        head.identity[:n], ckpt.identity_shape[:n], atol=1e-4
+    ):
+        out.warnings.append(
+            "the head's identity shape differs from the avatar's; the avatar "
+            "decodes on the identity chosen in its settings"
+        )
     if head.n_expr > ckpt.config.n_expr:
-        out.warnings.append(f"the head has {head.n_expr} expression shape keys, the avatar "
-                            f"reads {ckpt.config.n_expr}: the rest are ignored")
+        out.warnings.append(
+            f"the head has {head.n_expr} expression shape keys, the avatar "
+            f"reads {ckpt.config.n_expr}: the rest are ignored"
+        )
     return out

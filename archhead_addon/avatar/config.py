@@ -43,11 +43,17 @@ class AvatarConfig:
             raise ValueError(f"need 1 <= s_min <= s_max, got {self.s_min}, {self.s_max}")
         if len(set(self.levels)) != len(self.levels) or any(s < 1 for s in self.levels):
             raise ValueError(f"feature levels must be distinct positive sizes: {self.levels}")
-        if self.tau <= 0 or self.head_layers < 1 or self.log_scale_min >= self.log_scale_max \
-                or min(self.hidden, self.colour_hidden, self.feature_dim, self.drive_dim) < 1 \
-                or self.pe_freqs < 0:
-            raise ValueError("need tau > 0, head_layers >= 1, positive widths, pe_freqs >= 0 "
-                             "and log_scale_min < log_scale_max")
+        if (
+            self.tau <= 0
+            or self.head_layers < 1
+            or self.log_scale_min >= self.log_scale_max
+            or min(self.hidden, self.colour_hidden, self.feature_dim, self.drive_dim) < 1
+            or self.pe_freqs < 0
+        ):
+            raise ValueError(
+                "need tau > 0, head_layers >= 1, positive widths, pe_freqs >= 0 "
+                "and log_scale_min < log_scale_max"
+            )
 
     @property
     def pe_dim(self) -> int:

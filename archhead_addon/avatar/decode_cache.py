@@ -26,7 +26,10 @@ _LOGIT_MIN = float(np.log(MIN_OPACITY / (1.0 - MIN_OPACITY)))
 
 @dataclass
 class SplatFrame:
-    """One frame's visible Gaussians (float32, 3DGS storage conventions, FLAME space)."""
+    """One frame's visible Gaussians (float32, 3DGS storage conventions, FLAME space): the
+    Gaussian container of the numpy side (cache, point instances, PLY, exact renders). Its
+    fields are in the PLY's order, as in `Gaussians`; pass them on by name (`arrays()`),
+    never by position: the splat kernel takes quats before log_scales."""
 
     means: np.ndarray  # (N,3)
     log_scales: np.ndarray  # (N,3)
@@ -38,19 +41,33 @@ class SplatFrame:
     @classmethod
     def from_gaussians(cls, g: Gaussians) -> SplatFrame:
         keep = np.asarray(g.opacity_logits) >= _LOGIT_MIN
-        return cls(*(np.ascontiguousarray(np.asarray(a)[keep], np.float32)
-                     for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)),
-                   resolution=int(g.resolution))
+        return cls(
+            *(
+                np.ascontiguousarray(np.asarray(a)[keep], np.float32)
+                for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)
+            ),
+            resolution=int(g.resolution),
+        )
 
     def __len__(self) -> int:
         return len(self.means)
 
     @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in self._arrays().values())
+        return sum(a.nbytes for a in self.arrays().values())
 
-    def _arrays(self) -> dict[str, np.ndarray]:
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The arrays by field name, in field order (`write_ply(path, **frame.arrays())`)."""
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "resolution"}
+
+    @classmethod
+    def concatenate(cls, frames: list[SplatFrame]) -> SplatFrame:
+        """Several frames as one (a scene's avatars in one space); resolution of the first."""
+        arrays = [f.arrays() for f in frames]
+        return cls(
+            **{name: np.concatenate([a[name] for a in arrays]) for name in arrays[0]},
+            resolution=frames[0].resolution,
+        )
 
 
 def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
@@ -117,12 +134,13 @@ class DiskCache:
             return None
         try:
             with np.load(path, allow_pickle=False) as z:
-                arrays = {name: z[name] for name in
-                          ("means", "log_scales", "quats", "opacity_logits", "sh")}
+                arrays = {
+                    name: z[name]
+                    for name in ("means", "log_scales", "quats", "opacity_logits", "sh")
+                }
                 return SplatFrame(**arrays, resolution=int(z["resolution"]))
         except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError):
             return None
 
     def put(self, key: str, frame: SplatFrame) -> None:
-        save_npz_atomic(self.path(key), **frame._arrays(),
-                        resolution=np.int64(frame.resolution))
+        save_npz_atomic(self.path(key), **frame.arrays(), resolution=np.int64(frame.resolution))

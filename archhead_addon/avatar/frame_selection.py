@@ -9,13 +9,14 @@ _RANGE = re.compile(r"^\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*(?::\s*(\d+)\s*)?)?$")
 
 
 def parse_frames(text: str) -> list[int]:
-    """"1-20", "1-20:5,30", "7": sorted unique frames (ranges inclusive, ':N' a stride)."""
+    """ "1-20", "1-20:5,30", "7": sorted unique frames (ranges inclusive, ':N' a stride)."""
     frames: set[int] = set()
     for part in text.split(","):
         m = _RANGE.match(part)
         if not m:
-            raise ValueError(f"bad frame range {part.strip()!r} in {text!r} "
-                             "(expected e.g. 1-20, 1-20:5 or 7)")
+            raise ValueError(
+                f"bad frame range {part.strip()!r} in {text!r} (expected e.g. 1-20, 1-20:5 or 7)"
+            )
         first = int(m[1])
         last = int(m[2]) if m[2] is not None else first
         step = int(m[3] or 1)

@@ -35,7 +35,12 @@ def quat_multiply(a, b, stack=np.stack):
     """Hamilton product a * b of w, x, y, z quaternions (numpy, or torch with torch.stack)."""
     aw, ax, ay, az = (a[..., i] for i in range(4))
     bw, bx, by, bz = (b[..., i] for i in range(4))
-    return stack([aw * bw - ax * bx - ay * by - az * bz,
-                  aw * bx + ax * bw + ay * bz - az * by,
-                  aw * by - ax * bz + ay * bw + az * bx,
-                  aw * bz + ax * by - ay * bx + az * bw], -1)
+    return stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )

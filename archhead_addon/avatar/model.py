@@ -77,9 +77,12 @@ class Decoder(nn.Module):
         super().__init__()
         self.slices = config.head_slices()
         self.first = nn.Linear(config.in_dim, config.fused_width)
-        self.heads = nn.ModuleDict({
-            name: _Head(config.head_width(name), config.head_layers - 1, width)
-            for name, width in HEADS.items()})
+        self.heads = nn.ModuleDict(
+            {
+                name: _Head(config.head_width(name), config.head_layers - 1, width)
+                for name, width in HEADS.items()
+            }
+        )
 
     def forward(self, x) -> dict[str, torch.Tensor]:
         h = F.relu(self.first(x))
@@ -87,8 +90,7 @@ class Decoder(nn.Module):
 
 
 class ArchHeadAvatar(nn.Module):
-    def __init__(self, mesh: FlameModel, identity_shape, config: AvatarConfig,
-                 base_model_id: str):
+    def __init__(self, mesh: FlameModel, identity_shape, config: AvatarConfig, base_model_id: str):
         super().__init__()
         if mesh.uv is None:
             raise ValueError("the avatar mesh needs a UV layout (see uv.layout.avatar_mesh)")
@@ -96,25 +98,37 @@ class ArchHeadAvatar(nn.Module):
         self.flame = FlameLayer(mesh)
         self.raster = UVRaster(mesh.uv, mesh.uv_faces)
         self.face_scale = face_texel_scale(mesh.v_template, mesh.faces, mesh.uv, mesh.uv_faces)
-        self.register_buffer("identity_shape",
-                             torch.as_tensor(np.asarray(identity_shape), dtype=torch.float32))
-        self.register_buffer("freqs", 2.0 ** torch.arange(config.pe_freqs, dtype=torch.float32),
-                             persistent=False)
-        self.register_buffer("pe_centre", torch.tensor(config.pe_centre, dtype=torch.float32),
-                             persistent=False)
+        self.register_buffer(
+            "identity_shape", torch.as_tensor(np.asarray(identity_shape), dtype=torch.float32)
+        )
+        self.register_buffer(
+            "freqs", 2.0 ** torch.arange(config.pe_freqs, dtype=torch.float32), persistent=False
+        )
+        self.register_buffer(
+            "pe_centre", torch.tensor(config.pe_centre, dtype=torch.float32), persistent=False
+        )
         c = config.feature_dim
-        self.features = nn.ParameterDict({str(s): nn.Parameter(FEATURE_INIT_STD
-                                                               * torch.randn(c, s, s))
-                                          for s in config.levels})
-        self.mapping = nn.Sequential(nn.Linear(config.mapping_in, config.mapping_hidden),
-                                     nn.ReLU(), nn.Linear(config.mapping_hidden, config.drive_dim))
+        self.features = nn.ParameterDict(
+            {str(s): nn.Parameter(FEATURE_INIT_STD * torch.randn(c, s, s)) for s in config.levels}
+        )
+        self.mapping = nn.Sequential(
+            nn.Linear(config.mapping_in, config.mapping_hidden),
+            nn.ReLU(),
+            nn.Linear(config.mapping_hidden, config.drive_dim),
+        )
         self.decoder = Decoder(config)
         self._init_outputs()
         self._levels: OrderedDict = OrderedDict()  # plain data, so the module still pickles
 
     @classmethod
-    def create(cls, model: FlameModel, identity_shape=None, config: AvatarConfig | None = None,
-               uv_obj=None, cache=None) -> ArchHeadAvatar:
+    def create(
+        cls,
+        model: FlameModel,
+        identity_shape=None,
+        config: AvatarConfig | None = None,
+        uv_obj=None,
+        cache=None,
+    ) -> ArchHeadAvatar:
         """A fresh avatar for `model` (UV layout resolved, teeth added); config defaults to
         the paper's with the model's expression count, and is completed with the head centre
         and, when the model has an albedo, its mean colour."""
@@ -130,8 +144,10 @@ class ArchHeadAvatar(nn.Module):
         return cls(mesh, shape, config, model.model_id)
 
     def _init_outputs(self):
-        starts = {"rotation": [1.0, 0.0, 0.0, 0.0],
-                  "opacity": [math.log(self.config.init_opacity / (1 - self.config.init_opacity))]}
+        starts = {
+            "rotation": [1.0, 0.0, 0.0, 0.0],
+            "opacity": [math.log(self.config.init_opacity / (1 - self.config.init_opacity))],
+        }
         colour = torch.zeros(HEADS["colour"])
         colour[:3] = (torch.tensor(self.config.init_rgb) - 0.5) / SH_C0
         with torch.no_grad():
@@ -157,26 +173,31 @@ class ArchHeadAvatar(nn.Module):
     def _build_level(self, size: int, device) -> dict[str, torch.Tensor]:
         table = self.raster.table(size)
         base = np.log(self.face_scale[table.face] / size)[:, None]
-        return {"texel": torch.from_numpy(table.texel).to(device),
-                "vert_idx": torch.from_numpy(self.mesh.faces[table.face]).to(device),
-                "bary": torch.from_numpy(table.bary.astype(np.float32)).to(device),
-                "base_log_scale": torch.from_numpy(base.astype(np.float32)).to(device)}
+        return {
+            "texel": torch.from_numpy(table.texel).to(device),
+            "vert_idx": torch.from_numpy(self.mesh.faces[table.face]).to(device),
+            "bary": torch.from_numpy(table.bary.astype(np.float32)).to(device),
+            "base_log_scale": torch.from_numpy(base.astype(np.float32)).to(device),
+        }
 
     def feature_map(self, size: int) -> torch.Tensor:
         """(C, size, size): every level resized bicubically to size, blended by eq. 4-5."""
         weights = blend_weights(self.config.levels, size, self.config.tau)
         out = 0
         for w, s in zip(weights, self.config.levels, strict=True):
-            resized = F.interpolate(self.features[str(s)][None], size=(size, size),
-                                    mode="bicubic", align_corners=False)[0]
+            resized = F.interpolate(
+                self.features[str(s)][None], size=(size, size), mode="bicubic", align_corners=False
+            )[0]
             out = out + float(w) * resized
         return out
 
     def drive(self, expr=None, jaw=None, eyes=None) -> torch.Tensor:
         """The driving code (K,) from expression (padded to n_expr), jaw and eyes."""
-        parts = [_code(expr, self.config.n_expr, "expr", self.identity_shape, pad=True),
-                 _code(jaw, 3, "jaw", self.identity_shape),
-                 _code(eyes, 6, "eyes", self.identity_shape)]
+        parts = [
+            _code(expr, self.config.n_expr, "expr", self.identity_shape, pad=True),
+            _code(jaw, 3, "jaw", self.identity_shape),
+            _code(eyes, 6, "eyes", self.identity_shape),
+        ]
         return torch.tanh(self.mapping(torch.cat(parts)))
 
     def encode(self, positions: torch.Tensor) -> torch.Tensor:
@@ -184,8 +205,17 @@ class ArchHeadAvatar(nn.Module):
         a = (p[:, None, :] * self.freqs[:, None]).reshape(len(p), -1)
         return torch.cat([p, torch.sin(a), torch.cos(a)], dim=1)
 
-    def forward(self, lod: float = 0.0, *, expr=None, jaw=None, neck=None, eyes=None,
-                rotation=None, translation=None) -> Gaussians:
+    def forward(
+        self,
+        lod: float = 0.0,
+        *,
+        expr=None,
+        jaw=None,
+        neck=None,
+        eyes=None,
+        rotation=None,
+        translation=None,
+    ) -> Gaussians:
         """Gaussians of one frame. Codes are 1-D (or (1, n)); absent ones are zero."""
         cfg = self.config
         l, size = resolution_for_lod(lod, cfg.s_max, cfg.s_min)
@@ -193,9 +223,12 @@ class ArchHeadAvatar(nn.Module):
         like = self.identity_shape
         expr_t = None if expr is None else _code(expr, self.mesh.n_expr, "expr", like, True)
         verts, joints, _ = self.flame.forward_full(
-            shape=self.identity_shape[None], expr=None if expr_t is None else expr_t[None],
-            neck=_code(neck, 3, "neck", like)[None], jaw=_code(jaw, 3, "jaw", like)[None],
-            eyes=_code(eyes, 6, "eyes", like)[None])
+            shape=self.identity_shape[None],
+            expr=None if expr_t is None else expr_t[None],
+            neck=_code(neck, 3, "neck", like)[None],
+            jaw=_code(jaw, 3, "jaw", like)[None],
+            eyes=_code(eyes, 6, "eyes", like)[None],
+        )
         pos = position_map(verts[0], lv["vert_idx"], lv["bary"])
         n = len(pos)
         parts = [self.encode(pos)]
@@ -215,12 +248,16 @@ class ArchHeadAvatar(nn.Module):
         q = torch.where(norm > QUAT_EPS, q / norm.clamp_min(QUAT_EPS), identity)
         return Gaussians(
             means=means,
-            log_scales=(lv["base_log_scale"] + raw["scale"]).clamp(cfg.log_scale_min,
-                                                                   cfg.log_scale_max),
+            log_scales=(lv["base_log_scale"] + raw["scale"]).clamp(
+                cfg.log_scale_min, cfg.log_scale_max
+            ),
             quats=quat_multiply(axis_angle_to_quaternion(rot)[None], q, stack=torch.stack),
             opacity_logits=raw["opacity"][:, 0],
             sh=raw["colour"].reshape(n, -1, 3),
-            offsets=offsets, uv_texel=lv["texel"], resolution=size)
+            offsets=offsets,
+            uv_texel=lv["texel"],
+            resolution=size,
+        )
 
 
 def _code(value, width: int, name: str, like: torch.Tensor, pad: bool = False) -> torch.Tensor:
@@ -229,8 +266,10 @@ def _code(value, width: int, name: str, like: torch.Tensor, pad: bool = False) -
         return like.new_zeros(width)
     t = torch.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1)
     if t.numel() > width or (t.numel() < width and not pad):
-        raise ValueError(f"code '{name}': {t.numel()} values, the avatar takes "
-                         f"{'at most ' if pad else ''}{width}")
+        raise ValueError(
+            f"code '{name}': {t.numel()} values, the avatar takes "
+            f"{'at most ' if pad else ''}{width}"
+        )
     if not torch.isfinite(t).all():
         raise ValueError(f"code '{name}' contains NaN or Inf")
     return F.pad(t, (0, width - t.numel())) if pad else t

@@ -40,8 +40,9 @@ class AvatarRuntime:
         self.mesh = checkpoint_mesh(ckpt, flame, path)
         self.head = _bake_identity(self.mesh, ckpt.identity_shape)
         self.raster = UVRaster(self.mesh.uv, self.mesh.uv_faces)
-        self.face_scale = face_texel_scale(self.mesh.v_template, self.mesh.faces, self.mesh.uv,
-                                           self.mesh.uv_faces)
+        self.face_scale = face_texel_scale(
+            self.mesh.v_template, self.mesh.faces, self.mesh.uv, self.mesh.uv_faces
+        )
         self.features = {s: ckpt.params[f"features.{s}"] for s in cfg.levels}
         self.pe_centre = np.asarray(cfg.pe_centre, F32)
         self.freqs = (2.0 ** np.arange(cfg.pe_freqs)).astype(F32)
@@ -59,18 +60,36 @@ class AvatarRuntime:
     def _build_level(self, size: int, precision: str) -> dict:
         table = self.raster.table(size)
         net = self._nets[precision]
-        level = {"texel": table.texel, "vert_idx": self.mesh.faces[table.face],
-                 "bary": table.bary.astype(F32),
-                 "base_log_scale": np.log(self.face_scale[table.face] / size)[None].astype(F32)}
+        level = {
+            "texel": table.texel,
+            "vert_idx": self.mesh.faces[table.face],
+            "bary": table.bary.astype(F32),
+            "base_log_scale": np.log(self.face_scale[table.face] / size)[None].astype(F32),
+        }
         if self.config.levels:
-            fmap = sum(F32(w) * resize(self.features[s], size) for w, s in zip(
-                blend_weights(self.config.levels, size, self.config.tau), self.config.levels,
-                strict=True))
+            fmap = sum(
+                F32(w) * resize(self.features[s], size)
+                for w, s in zip(
+                    blend_weights(self.config.levels, size, self.config.tau),
+                    self.config.levels,
+                    strict=True,
+                )
+            )
             level["first"] = net.feature_term(fmap.reshape(len(fmap), -1)[:, table.texel])
         return level
 
-    def decode(self, lod: float = 0.0, *, expr=None, jaw=None, neck=None, eyes=None,
-               rotation=None, translation=None, precision: str = "fp32") -> Gaussians:
+    def decode(
+        self,
+        lod: float = 0.0,
+        *,
+        expr=None,
+        jaw=None,
+        neck=None,
+        eyes=None,
+        rotation=None,
+        translation=None,
+        precision: str = "fp32",
+    ) -> Gaussians:
         """Gaussians of one frame (numpy arrays). Codes are 1-D; absent ones are zero."""
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
@@ -78,12 +97,23 @@ class AvatarRuntime:
         l, size = resolution_for_lod(lod, cfg.s_max, cfg.s_min)
         level = self.level(size, precision)
         expr = None if expr is None else _code(expr, len(np.ravel(expr)), "expr")
-        head = forward_full(self.head, dtype=F32, expr=expr, neck=_code(neck, 3, "neck"),
-                            jaw=_code(jaw, JAW_DIM, "jaw"), eyes=_code(eyes, EYES_DIM, "eyes"))
+        head = forward_full(
+            self.head,
+            dtype=F32,
+            expr=expr,
+            neck=_code(neck, 3, "neck"),
+            jaw=_code(jaw, JAW_DIM, "jaw"),
+            eyes=_code(eyes, EYES_DIM, "eyes"),
+        )
         # channel-major (3, N) from here on: every row a contiguous attribute
         pos = np.einsum("nk,nkc->cn", level["bary"], head.vertices[0][level["vert_idx"]])
-        drive_in = np.concatenate([_code(expr, cfg.n_expr, "expr", pad=True),
-                                   _code(jaw, JAW_DIM, "jaw"), _code(eyes, EYES_DIM, "eyes")])
+        drive_in = np.concatenate(
+            [
+                _code(expr, cfg.n_expr, "expr", pad=True),
+                _code(jaw, JAW_DIM, "jaw"),
+                _code(eyes, EYES_DIM, "eyes"),
+            ]
+        )
         raw = net.decode(self._encode(pos), level.get("first"), net.frame_bias(drive_in, l))
 
         offsets = F32(cfg.offset_unit) * raw["offset"]
@@ -94,13 +124,20 @@ class AvatarRuntime:
         q = raw["rotation"]
         norm = np.sqrt(np.einsum("in,in->n", q, q))
         q = np.where(norm > QUAT_EPS, q / np.maximum(norm, QUAT_EPS), F32([[1], [0], [0], [0]]))
-        log_scales = np.clip(level["base_log_scale"] + raw["scale"], cfg.log_scale_min,
-                             cfg.log_scale_max)
+        log_scales = np.clip(
+            level["base_log_scale"] + raw["scale"], cfg.log_scale_min, cfg.log_scale_max
+        )
         quats = quat_multiply(axis_angle_to_quaternion(rot).astype(F32), q.T)
-        return Gaussians(means=_rows(means), log_scales=_rows(log_scales), quats=quats,
-                         opacity_logits=raw["opacity"][0], sh=_rows(raw["colour"]).reshape(
-                             pos.shape[1], -1, 3), offsets=_rows(offsets),
-                         uv_texel=level["texel"], resolution=size)
+        return Gaussians(
+            means=_rows(means),
+            log_scales=_rows(log_scales),
+            quats=quats,
+            opacity_logits=raw["opacity"][0],
+            sh=_rows(raw["colour"]).reshape(pos.shape[1], -1, 3),
+            offsets=_rows(offsets),
+            uv_texel=level["texel"],
+            resolution=size,
+        )
 
     def _encode(self, pos: np.ndarray) -> np.ndarray:
         """(pe_dim + 1, N) float32 from positions (3, N): p, sin(2^k p), cos(2^k p) (k-major,
@@ -110,8 +147,8 @@ class AvatarRuntime:
         p = out[:3]
         np.subtract(pos, self.pe_centre[:, None], out=p)
         a = (self.freqs[:, None, None] * p[None]).reshape(-1, n)
-        np.sin(a, out=out[3:3 + k])
-        np.cos(a, out=out[3 + k:3 + 2 * k])
+        np.sin(a, out=out[3 : 3 + k])
+        np.cos(a, out=out[3 + k : 3 + 2 * k])
         out[-1] = 1.0
         return out
 
@@ -141,23 +178,32 @@ class _Network:
         def b(name):
             return self.round(params[name].astype(F32))[:, None]
 
-        self.mapping = [(w("mapping.0.weight"), b("mapping.0.bias")[:, 0]),
-                        (w("mapping.2.weight"), b("mapping.2.bias")[:, 0])]
+        self.mapping = [
+            (w("mapping.0.weight"), b("mapping.0.bias")[:, 0]),
+            (w("mapping.2.weight"), b("mapping.2.bias")[:, 0]),
+        ]
         first = w("decoder.first.weight")  # (fused width, in_dim): PE | feature | drive | l
         n_feat = cfg.feature_dim if cfg.levels else 0
         pe = cfg.pe_dim
         self.w_pe = first[:, :pe]
-        self.w_feature = np.ascontiguousarray(first[:, pe:pe + n_feat])
-        self.w_drive = first[:, pe + n_feat:pe + n_feat + cfg.drive_dim]
+        self.w_feature = np.ascontiguousarray(first[:, pe : pe + n_feat])
+        self.w_drive = first[:, pe + n_feat : pe + n_feat + cfg.drive_dim]
         self.w_lod = first[:, -1]
         self.b_first = b("decoder.first.bias")[:, 0]
         self.slices = cfg.head_slices()
         self.layers = {
-            name: ([(w(f"decoder.heads.{name}.hidden.{i}.weight"),
-                     b(f"decoder.heads.{name}.hidden.{i}.bias"))
-                    for i in range(cfg.head_layers - 1)],
-                   (w(f"decoder.heads.{name}.out.weight"), b(f"decoder.heads.{name}.out.bias")))
-            for name in HEADS}
+            name: (
+                [
+                    (
+                        w(f"decoder.heads.{name}.hidden.{i}.weight"),
+                        b(f"decoder.heads.{name}.hidden.{i}.bias"),
+                    )
+                    for i in range(cfg.head_layers - 1)
+                ],
+                (w(f"decoder.heads.{name}.out.weight"), b(f"decoder.heads.{name}.out.bias")),
+            )
+            for name in HEADS
+        }
 
     def round(self, x: np.ndarray) -> np.ndarray:
         """x as the path holds it: unchanged (fp32) or rounded to float16 (kept in float32
@@ -183,8 +229,7 @@ class _Network:
         """Raw head outputs, (width, N) each, from the PE (pe_dim + 1, N)."""
         n = pe.shape[1]
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
-        out = {name: np.empty((head[1][0].shape[0], n), F32)
-               for name, head in self.layers.items()}
+        out = {name: np.empty((head[1][0].shape[0], n), F32) for name, head in self.layers.items()}
         for s in range(0, n, CHUNK):
             cols = slice(s, min(s + CHUNK, n))
             h = w_in @ self.round(pe[:, cols])
@@ -221,9 +266,12 @@ def _rows(x: np.ndarray) -> np.ndarray:
 def _bake_identity(mesh: FlameModel, identity_shape: np.ndarray) -> FlameModel:
     """The mesh with the identity blendshapes applied to the template and dropped: FLAME
     computes the same vertices and joints from it, without the identity product per frame."""
-    offsets = mesh.shapedirs[:, :, :len(identity_shape)] @ identity_shape.astype(np.float64)
-    return mesh.replace(v_template=mesh.v_template + offsets, n_shape=0,
-                        shapedirs=mesh.shapedirs[:, :, mesh.n_shape:])
+    offsets = mesh.shapedirs[:, :, : len(identity_shape)] @ identity_shape.astype(np.float64)
+    return mesh.replace(
+        v_template=mesh.v_template + offsets,
+        n_shape=0,
+        shapedirs=mesh.shapedirs[:, :, mesh.n_shape :],
+    )
 
 
 def _code(value, width: int, name: str, pad: bool = False) -> np.ndarray:
@@ -232,8 +280,9 @@ def _code(value, width: int, name: str, pad: bool = False) -> np.ndarray:
         return np.zeros(width)
     v = np.asarray(value, np.float64).reshape(-1)
     if len(v) > width or (len(v) < width and not pad):
-        raise ValueError(f"code '{name}': {len(v)} values, the avatar takes "
-                         f"{'at most ' if pad else ''}{width}")
+        raise ValueError(
+            f"code '{name}': {len(v)} values, the avatar takes {'at most ' if pad else ''}{width}"
+        )
     if not np.isfinite(v).all():
         raise ValueError(f"code '{name}' contains NaN or Inf")
     return np.pad(v, (0, width - len(v)))

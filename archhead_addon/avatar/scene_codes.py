@@ -45,12 +45,13 @@ class FrameCodes:
 def expression_joint_dirs(model: FlameModel, n_expr: int) -> np.ndarray:
     """(E,5,3): the joints' displacement per unit of each of the first n_expr expressions."""
     e0 = model.n_shape
-    dirs = model.shapedirs[:, :, e0:e0 + n_expr]  # (V,3,E)
+    dirs = model.shapedirs[:, :, e0 : e0 + n_expr]  # (V,3,E)
     return np.einsum("jv,vce->ejc", model.j_regressor, dirs)
 
 
-def codes_from_rig(rotations: np.ndarray, root_location: np.ndarray, expr: np.ndarray,
-                   joint_dirs: np.ndarray) -> FrameCodes:
+def codes_from_rig(
+    rotations: np.ndarray, root_location: np.ndarray, expr: np.ndarray, joint_dirs: np.ndarray
+) -> FrameCodes:
     """Codes from the bones' local rotation matrices (5,3,3), the root bone's location (3,),
     the expression shape-key values (E,) and `expression_joint_dirs` (>= E rows)."""
     rotations = np.asarray(rotations, np.float64)
@@ -60,8 +61,14 @@ def codes_from_rig(rotations: np.ndarray, root_location: np.ndarray, expr: np.nd
     if len(expr) > len(joint_dirs):
         raise ValueError(f"{len(expr)} expression values, the model has {len(joint_dirs)}")
     aa = matrix_to_axis_angle(rotations)  # (5,3)
-    d_root = expr @ joint_dirs[:len(expr), 0]  # the root joint's expression displacement
+    d_root = expr @ joint_dirs[: len(expr), 0]  # the root joint's expression displacement
     r0 = rotations[0]
     translation = np.asarray(root_location, np.float64) - (d_root - r0 @ d_root)
-    return FrameCodes(expr=expr, rotation=aa[0], neck=aa[1], jaw=aa[2],
-                      eyes=np.concatenate([aa[3], aa[4]]), translation=translation)
+    return FrameCodes(
+        expr=expr,
+        rotation=aa[0],
+        neck=aa[1],
+        jaw=aa[2],
+        eyes=np.concatenate([aa[3], aa[4]]),
+        translation=translation,
+    )

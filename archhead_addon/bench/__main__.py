@@ -5,7 +5,7 @@
         [--ablations [--steps N] [--ablation-config F]]
 
 Per level of detail (steps of --step): Gaussians, numpy decode ms (fp32, fp16), the splat
-kernel's ms at 512², Blender's update ms for a LOD change (operators/bench_lod.py --sweep, in a
+kernel's ms at 512², Blender's update ms for a LOD change (benchmarks/blender_lod.py --sweep, in a
 child process through the bpy module), test L1 / PSNR / SSIM / ST-LPIPS; the error-against-
 run-time curve; the image change between neighbouring levels; the LOD 1 : LOD 0 ratios beside
 the paper's; the stability sweep; with --ablations, table 4's variants trained by the project's
@@ -30,32 +30,51 @@ from pathlib import Path
 from ..io.atomic import write_bytes_atomic
 from ..io.cli import run_command
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
 FIGURES = ("error_vs_time.png", "lod_smoothness.png")
 DOCS_REPORT = "bench_report.md"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m archhead_addon.bench",
-                                description=__doc__.split("\n\n")[0])
-    p.add_argument("--avatar", type=Path, default=Path("out/run_cpu/avatar.npz"),
-                   help="trained avatar (default: the CPU run's, out/run_cpu/avatar.npz)")
-    p.add_argument("--data", type=Path, default=Path("out/subject256"),
-                   help="the data folder it trained on (default: out/subject256)")
+    p = argparse.ArgumentParser(
+        prog="python -m archhead_addon.bench", description=__doc__.split("\n\n")[0]
+    )
+    p.add_argument(
+        "--avatar",
+        type=Path,
+        default=Path("out/run_cpu/avatar.npz"),
+        help="trained avatar (default: the CPU run's, out/run_cpu/avatar.npz)",
+    )
+    p.add_argument(
+        "--data",
+        type=Path,
+        default=Path("out/subject256"),
+        help="the data folder it trained on (default: out/subject256)",
+    )
     p.add_argument("--out", type=Path, default=Path("out/report"))
-    p.add_argument("--docs", type=Path, help="also copy the report (as bench_report.md) and "
-                   "its figures into this folder")
+    p.add_argument(
+        "--docs",
+        type=Path,
+        help="also copy the report (as bench_report.md) and its figures into this folder",
+    )
     p.add_argument("--step", type=float, default=0.05, help="LOD step (1 / step an integer)")
     p.add_argument("--test-frames", type=int, help="use only the first N test frames")
     p.add_argument("--resolution", type=int, help="image size (default: the training run's)")
     p.add_argument("--repeats", type=int, default=3, help="timings: median of this many")
     p.add_argument("--no-blender", action="store_true", help="leave out Blender's update ms")
-    p.add_argument("--ablations", action="store_true", help="train and evaluate table 4's "
-                   "variants (no feature map, single maps 64 / 128 / 256, and the full field)")
-    p.add_argument("--steps", type=int, help="training steps of every variant (default: the "
-                   "config's total)")
-    p.add_argument("--ablation-config", default="cpu", help="their common training config "
-                   "(file or preset; default: cpu)")
+    p.add_argument(
+        "--ablations",
+        action="store_true",
+        help="train and evaluate table 4's "
+        "variants (no feature map, single maps 64 / 128 / 256, and the full field)",
+    )
+    p.add_argument(
+        "--steps", type=int, help="training steps of every variant (default: the config's total)"
+    )
+    p.add_argument(
+        "--ablation-config",
+        default="cpu",
+        help="their common training config (file or preset; default: cpu)",
+    )
     args = p.parse_args(argv)
     if not 0 < args.step <= 1 or abs(1 / args.step - round(1 / args.step)) > 1e-9:
         p.error("--step must divide 1, e.g. 0.05")
@@ -63,13 +82,27 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def blender_update_ms(avatar: Path, step: float, repeats: int) -> dict[float, float]:
-    """{l: median ms of a LOD change in Blender} from operators/bench_lod.py --sweep."""
+    """{l: median ms of a LOD change in Blender} from benchmarks/blender_lod.py --sweep (a
+    checkout's benchmark, run as a module from the checkout's root)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "lod.json"
-        subprocess.run([sys.executable, str(REPO_ROOT / "operators" / "bench_lod.py"),
-                        "--checkpoint", str(avatar.resolve()), "--sweep", str(step),
-                        "--json", str(out), "--repeats", str(repeats)], check=True,
-                       stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "benchmarks.blender_lod",
+                "--checkpoint",
+                str(avatar.resolve()),
+                "--sweep",
+                str(step),
+                "--json",
+                str(out),
+                "--repeats",
+                str(repeats),
+            ],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
         return {row["lod"]: row["update_ms"] for row in json.loads(out.read_text())}
 
 
@@ -95,14 +128,16 @@ def run(args) -> Path:
     frames = [test[i] for i in range(count)]
     perceptual = ShiftTolerantLPIPS()
     lods = lod_steps(args.step)
-    rows, images = measure_lods(runtime, frames, test.size, test.background, perceptual, lods,
-                                args.repeats)
+    rows, images = measure_lods(
+        runtime, frames, test.size, test.background, perceptual, lods, args.repeats
+    )
     update = {} if args.no_blender else blender_update_ms(args.avatar, args.step, args.repeats)
     pairs = smoothness(images)
     stability = stability_sweep(runtime, frames[0], test.size, test.background)
 
-    title = (f"{args.avatar}: {count} test frames of {args.data.name}, "
-             f"{test.size[1]}x{test.size[0]} px")
+    title = (
+        f"{args.avatar}: {count} test frames of {args.data.name}, {test.size[1]}x{test.size[0]} px"
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     report.plot_error_vs_time(args.out / FIGURES[0], rows, title)
     report.plot_smoothness(args.out / FIGURES[1], pairs, title)
@@ -118,7 +153,7 @@ def run(args) -> Path:
         f"the test frames. Kernel: SH colour + the C++ splat at {report.KERNEL_SIZE}², median "
         f"of {args.repeats}. Blender update: setting the avatar's level of detail to a new "
         "value through an evaluated depsgraph (handler, decode, point writes, Geometry Nodes; "
-        "`operators/bench_lod.py --sweep`). Frame = fp32 decode + kernel. Errors: fp32 on the "
+        "`benchmarks/blender_lod.py --sweep`). Frame = fp32 decode + kernel. Errors: fp32 on the "
         "test frames at the training resolution.\n\n" + report.lod_table(rows, update),
         f"![error against run time]({FIGURES[0]})",
         "## LOD 1 against LOD 0, beside the paper\n\n" + report.ratio_table(rows),
@@ -134,15 +169,27 @@ def run(args) -> Path:
         base = TrainConfig.load(args.ablation_config)
         steps = args.steps or base.total_steps
         trained = ablations.train_variants(base, steps, args.data, args.out / "ablations")
-        results = {name: (evaluate_lods(AvatarRuntime.load(path, model), frames, test.size,
-                                        test.background, perceptual, report.ABLATION_LODS,
-                                        ("fp32",)), seconds)
-                   for name, (path, seconds) in trained.items()}
+        results = {
+            name: (
+                evaluate_lods(
+                    AvatarRuntime.load(path, model),
+                    frames,
+                    test.size,
+                    test.background,
+                    perceptual,
+                    report.ABLATION_LODS,
+                    ("fp32",),
+                ),
+                seconds,
+            )
+            for name, (path, seconds) in trained.items()
+        }
         sections.append(
             f"## Ablations (table 4)\n\nEvery variant trained with config "
             f"`{args.ablation_config}` and {steps} steps (the stages in the config's "
             "proportion), evaluated on the same test frames. The paper's numbers are its own "
-            "subjects at its full GPU budget.\n\n" + report.ablation_table(results, steps))
+            "subjects at its full GPU budget.\n\n" + report.ablation_table(results, steps)
+        )
     sections.append(f"Report time: {time.perf_counter() - start:.0f} s.")
     path = args.out / "report.md"
     write_bytes_atomic(path, ("\n\n".join(sections) + "\n").encode())

@@ -14,9 +14,15 @@ from pathlib import Path
 
 from ..backend_process import train_command
 from ..train.config import TrainConfig
+from ..train.run_folder import RunFolder
 
-VARIANTS = {"full (multi-level)": None, "no feature map": [], "single map 64": [64],
-            "single map 128": [128], "single map 256": [256]}
+VARIANTS = {
+    "full (multi-level)": None,
+    "no feature map": [],
+    "single map 64": [64],
+    "single map 128": [128],
+    "single map 256": [256],
+}
 
 
 def variant_config(base: TrainConfig, levels: list[int] | None, steps: int) -> dict:
@@ -31,21 +37,26 @@ def variant_config(base: TrainConfig, levels: list[int] | None, steps: int) -> d
     return config
 
 
-def train_variants(base: TrainConfig, steps: int, data: Path, out: Path,
-                   python: str = sys.executable) -> dict[str, tuple[Path, float]]:
+def train_variants(
+    base: TrainConfig, steps: int, data: Path, out: Path, python: str = sys.executable
+) -> dict[str, tuple[Path, float]]:
     """{variant: (avatar checkpoint, training seconds)}; a variant's earlier run in its folder
     is replaced; its log goes to train.log there."""
     done = {}
     for name, levels in VARIANTS.items():
         folder = out / name.split(" (")[0].replace(" ", "_")
-        for stale in ("train_state.pt", "avatar.npz"):
-            (folder / stale).unlink(missing_ok=True)
+        run = RunFolder(folder)
+        run.clear_checkpoints()
         folder.mkdir(parents=True, exist_ok=True)
         config = folder / "ablation_config.json"
         config.write_text(json.dumps(variant_config(base, levels, steps)))
         start = time.perf_counter()
-        with open(folder / "train.log", "w") as log:
-            subprocess.run(train_command(python, data, folder, config), check=True,
-                           stdout=log, stderr=subprocess.STDOUT)
-        done[name] = (folder / "avatar.npz", time.perf_counter() - start)
+        with open(run.log, "w") as log:
+            subprocess.run(
+                train_command(python, data, folder, config),
+                check=True,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+        done[name] = (run.avatar, time.perf_counter() - start)
     return done

@@ -44,8 +44,13 @@ def _cases(n_expr: int, w2c: np.ndarray, centre: np.ndarray):
     yield "fp16", 0.0, "fp16", {}, w2c
     yield "fp16 at LOD 1", 1.0, "fp16", {}, w2c
     yield "fp16, expressions all +10", 0.0, "fp16", {"expr": np.full(n_expr, 10.0)}, w2c
-    yield "fp16, jaw, neck and eyes at π", 0.0, "fp16", {
-        "jaw": [pi, 0, 0], "neck": [0, pi, 0], "eyes": np.full(6, pi)}, w2c
+    yield (
+        "fp16, jaw, neck and eyes at π",
+        0.0,
+        "fp16",
+        {"jaw": [pi, 0, 0], "neck": [0, pi, 0], "eyes": np.full(6, pi)},
+        w2c,
+    )
 
 
 def _camera_at(w2c: np.ndarray, centre: np.ndarray, distance: float) -> np.ndarray:
@@ -58,8 +63,9 @@ def _camera_at(w2c: np.ndarray, centre: np.ndarray, distance: float) -> np.ndarr
     return out
 
 
-def stability_sweep(runtime: AvatarRuntime, item: dict, size: tuple[int, int],
-                    background) -> list[StabilityRow]:
+def stability_sweep(
+    runtime: AvatarRuntime, item: dict, size: tuple[int, int], background
+) -> list[StabilityRow]:
     """Rows for every case, changed from the test frame `item` (its codes and camera)."""
     codes = {k: np.asarray(item["codes"][k], np.float64) for k in DRIVING_CODES}
     K, w2c = item["K"], np.asarray(item["w2c"], np.float64)
@@ -71,13 +77,22 @@ def stability_sweep(runtime: AvatarRuntime, item: dict, size: tuple[int, int],
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # LODs outside [0, 1] warn that they are clamped
             g = runtime.decode(lod, precision=precision, **frame_codes)
-            rgb = render_frame(runtime, lod, frame_codes, K, camera, size, background,
-                               precision).rgb
+            rgb = render_frame(
+                runtime, lod, frame_codes, K, camera, size, background, precision
+            ).rgb
         names = ("means", "log_scales", "quats", "opacity_logits", "sh")
         values = [np.asarray(getattr(g, a), np.float64) for a in names] + [rgb]
-        largest = {a: float(np.abs(v[np.isfinite(v)]).max(initial=0.0))
-                   for a, v in zip(names, values, strict=False) if a in ATTRIBUTES}
-        rows.append(StabilityRow(name, largest,
-                                 sum(int((~np.isfinite(v)).sum()) for v in values),
-                                 image_change(rgb, base)))
+        largest = {
+            a: float(np.abs(v[np.isfinite(v)]).max(initial=0.0))
+            for a, v in zip(names, values, strict=False)
+            if a in ATTRIBUTES
+        }
+        rows.append(
+            StabilityRow(
+                name,
+                largest,
+                sum(int((~np.isfinite(v)).sum()) for v in values),
+                image_change(rgb, base),
+            )
+        )
     return rows

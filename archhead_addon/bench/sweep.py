@@ -38,9 +38,15 @@ def lod_steps(step: float) -> list[float]:
     return [round(i * step, 6) for i in range(round(1 / step) + 1)]
 
 
-def measure_lods(runtime: AvatarRuntime, frames: list[dict], size: tuple[int, int],
-                 background, perceptual, lods: list[float], repeats: int = 3
-                 ) -> tuple[list[LodRow], dict[float, np.ndarray]]:
+def measure_lods(
+    runtime: AvatarRuntime,
+    frames: list[dict],
+    size: tuple[int, int],
+    background,
+    perceptual,
+    lods: list[float],
+    repeats: int = 3,
+) -> tuple[list[LodRow], dict[float, np.ndarray]]:
     """The rows per LOD and the first test frame's fp32 image per LOD."""
     first: dict[float, np.ndarray] = {}
 
@@ -48,22 +54,32 @@ def measure_lods(runtime: AvatarRuntime, frames: list[dict], size: tuple[int, in
         if index == 0 and precision == "fp32":
             first[lod] = rgb
 
-    results = evaluate_lods(runtime, frames, size, background, perceptual, lods,
-                            ("fp32", "fp16"), keep_first)
+    results = evaluate_lods(
+        runtime, frames, size, background, perceptual, lods, ("fp32", "fp16"), keep_first
+    )
     by_key = {(r.lod, r.precision): r for r in results}
-    return [LodRow(by_key[lod, "fp32"], by_key[lod, "fp16"],
-                   kernel_ms(runtime, frames[0], size, background, lod, repeats))
-            for lod in lods], first
+    return [
+        LodRow(
+            by_key[lod, "fp32"],
+            by_key[lod, "fp16"],
+            kernel_ms(runtime, frames[0], size, background, lod, repeats),
+        )
+        for lod in lods
+    ], first
 
 
-def kernel_ms(runtime: AvatarRuntime, item: dict, size: tuple[int, int], background,
-              lod: float, repeats: int) -> float:
+def kernel_ms(
+    runtime: AvatarRuntime, item: dict, size: tuple[int, int], background, lod: float, repeats: int
+) -> float:
     """Median splat milliseconds at KERNEL_SIZE² of the frame's Gaussians, its camera's
     intrinsics scaled up to that size."""
     K = np.diag([KERNEL_SIZE / size[1], KERNEL_SIZE / size[0], 1.0]) @ item["K"]
-    times = [render_frame(runtime, lod, item["codes"], K, item["w2c"],
-                          (KERNEL_SIZE, KERNEL_SIZE), background).splat_ms
-             for _ in range(repeats)]
+    times = [
+        render_frame(
+            runtime, lod, item["codes"], K, item["w2c"], (KERNEL_SIZE, KERNEL_SIZE), background
+        ).splat_ms
+        for _ in range(repeats)
+    ]
     return statistics.median(times)
 
 
@@ -75,5 +91,6 @@ def image_change(a: np.ndarray, b: np.ndarray) -> float:
 def smoothness(images: dict[float, np.ndarray]) -> list[tuple[float, float, float]]:
     """(l, next l, image change) for every pair of neighbouring levels."""
     lods = sorted(images)
-    return [(a, b, image_change(images[a], images[b])) for a, b in zip(lods, lods[1:],
-                                                                       strict=False)]
+    return [
+        (a, b, image_change(images[a], images[b])) for a, b in zip(lods, lods[1:], strict=False)
+    ]

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from ..io.cli import run_command
 from ..io.errors import InputError
+from ..train.run_folder import RunFolder
 
 
 def _lods(text: str) -> list[float]:
@@ -39,15 +40,17 @@ def _precisions(text: str) -> list[str]:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m archhead_addon.evaluate",
-                                description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m archhead_addon.evaluate", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("--avatar", type=Path, required=True, help="avatar checkpoint (.npz)")
     p.add_argument("--data", type=Path, required=True, help="the data folder it trained on")
     p.add_argument("--out", type=Path, required=True, help="folder for tables and images")
     p.add_argument("--lods", type=_lods, default=[0.0, 0.25, 0.5, 0.75, 1.0])
     p.add_argument("--precisions", type=_precisions, default=["fp32", "fp16"])
-    p.add_argument("--resolution", type=int, help="image size (longer side); default: the "
-                   "training run's")
+    p.add_argument(
+        "--resolution", type=int, help="image size (longer side); default: the training run's"
+    )
     p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
     p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")
     p.add_argument("--drive-lod", type=float, default=0.0)
@@ -58,10 +61,11 @@ def parse_args(argv=None) -> argparse.Namespace:
 def run_resolution(args) -> int:
     if args.resolution is not None:
         return args.resolution
-    config = args.avatar.parent / "config.json"
+    config = RunFolder(args.avatar.parent).config
     if not config.is_file():
-        raise InputError(args.avatar.parent, None, "no config.json of a training run here: "
-                         "pass --resolution")
+        raise InputError(
+            args.avatar.parent, None, f"no {config.name} of a training run here: pass --resolution"
+        )
     return int(json.loads(config.read_text())["resolution"])
 
 
@@ -87,20 +91,37 @@ def evaluate(args) -> int:
         if index == 0 and precision == args.precisions[0]:
             first[lod] = rgb
 
-    results = evaluate_lods(runtime, frames, test.size, test.background,
-                            ShiftTolerantLPIPS(), args.lods, args.precisions, keep_first)
-    title = (f"{args.avatar.name}: {len(frames)} test frames of {args.data.name}, "
-             f"{test.size[1]}x{test.size[0]} px")
+    results = evaluate_lods(
+        runtime,
+        frames,
+        test.size,
+        test.background,
+        ShiftTolerantLPIPS(),
+        args.lods,
+        args.precisions,
+        keep_first,
+    )
+    title = (
+        f"{args.avatar.name}: {len(frames)} test frames of {args.data.name}, "
+        f"{test.size[1]}x{test.size[0]} px"
+    )
     write_tables(args.out, results, title)
     plot_error_vs_time(args.out / "error_vs_time.png", results, title)
     to_png(args.out / "lods.png", np.concatenate([frames[0]["image"], *first.values()], 1))
     print((args.out / "metrics.md").read_text())
     if args.drive is not None:
         driver = read_sequence(args.drive)
-        paths = reenact(runtime, driver, args.out / "reenact", test.size, test.background,
-                        (frames[0]["K"], frames[0]["w2c"]), args.drive_lod, args.drive_frames)
-        print(f"reenactment: {len(paths)} frames driven by {args.drive} in "
-              f"{args.out / 'reenact'}")
+        paths = reenact(
+            runtime,
+            driver,
+            args.out / "reenact",
+            test.size,
+            test.background,
+            (frames[0]["K"], frames[0]["w2c"]),
+            args.drive_lod,
+            args.drive_frames,
+        )
+        print(f"reenactment: {len(paths)} frames driven by {args.drive} in {args.out / 'reenact'}")
     return 0
 
 

@@ -34,9 +34,16 @@ class LodResult:
         return self.decode_ms + self.splat_ms
 
 
-def evaluate_lods(runtime: AvatarRuntime, frames: list[dict], size: tuple[int, int],
-                  background, perceptual, lods=LODS, precisions=PRECISIONS,
-                  on_frame=None) -> list[LodResult]:
+def evaluate_lods(
+    runtime: AvatarRuntime,
+    frames: list[dict],
+    size: tuple[int, int],
+    background,
+    perceptual,
+    lods=LODS,
+    precisions=PRECISIONS,
+    on_frame=None,
+) -> list[LodResult]:
     """Render every frame (dataset items) at every (lod, precision); on_frame(lod, precision,
     index, rgb) sees each image. Times exclude a first, untimed decode that fills the
     runtime's per-resolution cache."""
@@ -47,17 +54,26 @@ def evaluate_lods(runtime: AvatarRuntime, frames: list[dict], size: tuple[int, i
             runtime.decode(lod, precision=precision, **_drive(first))
             scores, decode, splat = [], [], []
             for i, item in enumerate(frames):
-                out = render_frame(runtime, lod, item["codes"], item["K"], item["w2c"], size,
-                                   background, precision)
+                out = render_frame(
+                    runtime, lod, item["codes"], item["K"], item["w2c"], size, background, precision
+                )
                 if on_frame is not None:
                     on_frame(lod, precision, i, out.rgb)
                 scores.append(_scores(out.rgb, item["image"], perceptual))
                 decode.append(out.decode_ms)
                 splat.append(out.splat_ms)
             mean = np.mean(scores, axis=0)
-            results.append(LodResult(lod, precision, runtime.resolution(lod), out.gaussians,
-                                     *map(float, mean), statistics.median(decode),
-                                     statistics.median(splat)))
+            results.append(
+                LodResult(
+                    lod,
+                    precision,
+                    runtime.resolution(lod),
+                    out.gaussians,
+                    *map(float, mean),
+                    statistics.median(decode),
+                    statistics.median(splat),
+                )
+            )
     return results
 
 

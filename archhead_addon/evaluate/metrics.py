@@ -37,8 +37,9 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch
 
 def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
     if pred.shape != target.shape or pred.ndim != 3:
-        raise ValueError(f"expected two (H,W,C) images, got {tuple(pred.shape)} and "
-                         f"{tuple(target.shape)}")
+        raise ValueError(
+            f"expected two (H,W,C) images, got {tuple(pred.shape)} and {tuple(target.shape)}"
+        )
     if min(pred.shape[:2]) < SSIM_WINDOW:
         raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW} px a side")
     x, y = (t.double().permute(2, 0, 1)[:, None] for t in (pred, target))  # (C,1,H,W)
@@ -49,6 +50,9 @@ def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
 
     mx, my = blur(x), blur(y)
     vx, vy, cxy = blur(x * x) - mx**2, blur(y * y) - my**2, blur(x * y) - mx * my
-    ssim_map = ((2 * mx * my + SSIM_C1) * (2 * cxy + SSIM_C2)
-                / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2)))
+    ssim_map = (
+        (2 * mx * my + SSIM_C1)
+        * (2 * cxy + SSIM_C2)
+        / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2))
+    )
     return float(ssim_map.mean())

@@ -33,9 +33,17 @@ def to_png(path: Path, rgb: np.ndarray) -> None:
         Image.fromarray(pixels).save(tmp, format="PNG")
 
 
-def reenact(runtime: AvatarRuntime, driver: Sequence, out_dir, size: tuple[int, int],
-            background, fallback_camera, lod: float = 0.0, frames: int | None = None,
-            precision: str = "fp32") -> list[Path]:
+def reenact(
+    runtime: AvatarRuntime,
+    driver: Sequence,
+    out_dir,
+    size: tuple[int, int],
+    background,
+    fallback_camera,
+    lod: float = 0.0,
+    frames: int | None = None,
+    precision: str = "fp32",
+) -> list[Path]:
     """Render the first `frames` (all if None) frames of `driver` as OUT/00000.png ..."""
     driver = driver.fit_to_model(runtime.mesh)
     n = len(driver) if frames is None else min(frames, len(driver))

@@ -27,22 +27,35 @@ class RenderedFrame:
         return self.decode_ms + self.splat_ms
 
 
-def render_frame(runtime: AvatarRuntime, lod: float, codes: dict, K, w2c,
-                 size: tuple[int, int], background, precision: str = "fp32",
-                 num_threads: int = 0) -> RenderedFrame:
+def render_frame(
+    runtime: AvatarRuntime,
+    lod: float,
+    codes: dict,
+    K,
+    w2c,
+    size: tuple[int, int],
+    background,
+    precision: str = "fp32",
+    num_threads: int = 0,
+) -> RenderedFrame:
     """One frame at level `lod`: codes (DRIVING_CODES, others ignored), K (3,3) and OpenCV
     w2c (4,4) for an image of size (H, W)."""
     start = time.perf_counter()
-    g = runtime.decode(lod, precision=precision, **{k: codes[k] for k in DRIVING_CODES
-                                                     if k in codes})
+    g = runtime.decode(
+        lod, precision=precision, **{k: codes[k] for k in DRIVING_CODES if k in codes}
+    )
     decoded = time.perf_counter()
     sh = np.asarray(g.sh, np.float32)
     centre = np.linalg.inv(np.asarray(w2c, np.float64))[:3, 3]
     colours = sh_to_rgb_numpy(degree_from_coeffs(sh.shape[1]), g.means - centre, sh)
-    settings = kernel.RasterSettings(viewmat=np.asarray(w2c, np.float64),
-                                     K=np.asarray(K, np.float64), width=size[1],
-                                     height=size[0], background=tuple(map(float, background)),
-                                     num_threads=num_threads)
+    settings = kernel.RasterSettings(
+        viewmat=np.asarray(w2c, np.float64),
+        K=np.asarray(K, np.float64),
+        width=size[1],
+        height=size[0],
+        background=tuple(map(float, background)),
+        num_threads=num_threads,
+    )
     raster = kernel.render(g.means, g.quats, g.log_scales, g.opacity_logits, colours, settings)
     done = time.perf_counter()
     return RenderedFrame(raster.rgb, len(g), 1e3 * (decoded - start), 1e3 * (done - decoded))

@@ -9,18 +9,42 @@ from pathlib import Path
 from ..io.atomic import atomic_path, write_bytes_atomic
 from .lods import LodResult
 
-COLUMNS = ("lod", "precision", "uv_resolution", "gaussians", "l1", "psnr", "ssim", "st_lpips",
-           "decode_ms", "splat_ms", "render_ms")
+COLUMNS = (
+    "lod",
+    "precision",
+    "uv_resolution",
+    "gaussians",
+    "l1",
+    "psnr",
+    "ssim",
+    "st_lpips",
+    "decode_ms",
+    "splat_ms",
+    "render_ms",
+)
 # Paper section 4.4: LOD 1 against LOD 0 (Gaussians, PSNR, SSIM, FPS) on its GPUs.
-PAPER_RATIOS = {"gaussians": "6.2 %", "psnr": "-0.97 %", "ssim": "-0.6 %",
-                "speed": "1.96x (+96 % FPS)"}
+PAPER_RATIOS = {
+    "gaussians": "6.2 %",
+    "psnr": "-0.97 %",
+    "ssim": "-0.6 %",
+    "speed": "1.96x (+96 % FPS)",
+}
 
 
 def _row(r: LodResult) -> dict:
-    return {"lod": r.lod, "precision": r.precision, "uv_resolution": r.resolution,
-            "gaussians": r.gaussians, "l1": r.l1, "psnr": r.psnr, "ssim": r.ssim,
-            "st_lpips": r.st_lpips, "decode_ms": r.decode_ms, "splat_ms": r.splat_ms,
-            "render_ms": r.render_ms}
+    return {
+        "lod": r.lod,
+        "precision": r.precision,
+        "uv_resolution": r.resolution,
+        "gaussians": r.gaussians,
+        "l1": r.l1,
+        "psnr": r.psnr,
+        "ssim": r.ssim,
+        "st_lpips": r.st_lpips,
+        "decode_ms": r.decode_ms,
+        "splat_ms": r.splat_ms,
+        "render_ms": r.render_ms,
+    }
 
 
 def to_csv(results: list[LodResult]) -> str:
@@ -28,18 +52,22 @@ def to_csv(results: list[LodResult]) -> str:
     writer = csv.DictWriter(out, COLUMNS, lineterminator="\n")
     writer.writeheader()
     for r in results:
-        writer.writerow({k: f"{v:.6g}" if isinstance(v, float) else v
-                         for k, v in _row(r).items()})
+        writer.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in _row(r).items()})
     return out.getvalue()
 
 
 def lod_table(results: list[LodResult]) -> str:
-    lines = ["| LOD | precision | S | Gaussians | L1 | PSNR (dB) | SSIM | ST-LPIPS | decode ms "
-             "| splat ms | total ms |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| LOD | precision | S | Gaussians | L1 | PSNR (dB) | SSIM | ST-LPIPS | decode ms "
+        "| splat ms | total ms |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results:
-        lines.append(f"| {r.lod:.2f} | {r.precision} | {r.resolution} | {r.gaussians:,} | "
-                     f"{r.l1:.4f} | {r.psnr:.2f} | {r.ssim:.4f} | {r.st_lpips:.4f} | "
-                     f"{r.decode_ms:.1f} | {r.splat_ms:.1f} | {r.render_ms:.1f} |")
+        lines.append(
+            f"| {r.lod:.2f} | {r.precision} | {r.resolution} | {r.gaussians:,} | "
+            f"{r.l1:.4f} | {r.psnr:.2f} | {r.ssim:.4f} | {r.st_lpips:.4f} | "
+            f"{r.decode_ms:.1f} | {r.splat_ms:.1f} | {r.render_ms:.1f} |"
+        )
     return "\n".join(lines)
 
 
@@ -49,19 +77,26 @@ def lod_ratios(results: list[LodResult], precision: str = "fp32") -> dict[str, f
     if 0.0 not in by_lod or 1.0 not in by_lod:
         raise ValueError("the LOD 1 : LOD 0 ratios need both levels evaluated")
     low, high = by_lod[1.0], by_lod[0.0]
-    return {"gaussians": low.gaussians / high.gaussians,
-            "psnr": low.psnr / high.psnr - 1, "ssim": low.ssim / high.ssim - 1,
-            "speed": high.render_ms / low.render_ms}
+    return {
+        "gaussians": low.gaussians / high.gaussians,
+        "psnr": low.psnr / high.psnr - 1,
+        "ssim": low.ssim / high.ssim - 1,
+        "speed": high.render_ms / low.render_ms,
+    }
 
 
 def ratio_table(results: list[LodResult], precision: str = "fp32") -> str:
     ours = lod_ratios(results, precision)
-    return "\n".join([
-        f"| LOD 1 vs LOD 0 ({precision}) | here | paper |", "|---|---|---|",
-        f"| Gaussians | {100 * ours['gaussians']:.1f} % | {PAPER_RATIOS['gaussians']} |",
-        f"| PSNR | {100 * ours['psnr']:+.2f} % | {PAPER_RATIOS['psnr']} |",
-        f"| SSIM | {100 * ours['ssim']:+.2f} % | {PAPER_RATIOS['ssim']} |",
-        f"| render speed | {ours['speed']:.2f}x | {PAPER_RATIOS['speed']} |"])
+    return "\n".join(
+        [
+            f"| LOD 1 vs LOD 0 ({precision}) | here | paper |",
+            "|---|---|---|",
+            f"| Gaussians | {100 * ours['gaussians']:.1f} % | {PAPER_RATIOS['gaussians']} |",
+            f"| PSNR | {100 * ours['psnr']:+.2f} % | {PAPER_RATIOS['psnr']} |",
+            f"| SSIM | {100 * ours['ssim']:+.2f} % | {PAPER_RATIOS['ssim']} |",
+            f"| render speed | {ours['speed']:.2f}x | {PAPER_RATIOS['speed']} |",
+        ]
+    )
 
 
 def write_tables(folder: Path, results: list[LodResult], title: str) -> None:
@@ -92,8 +127,13 @@ def plot_error_vs_time(path: Path, results: list[LodResult], title: str) -> None
             ax.plot(times, [getattr(r, metric) for r in rows], marker=marker, label=precision)
             if precision == "fp32":
                 for r, t in zip(rows, times, strict=True):
-                    ax.annotate(f"LOD {r.lod:g}", (t, getattr(r, metric)), fontsize=7,
-                                textcoords="offset points", xytext=(4, 4))
+                    ax.annotate(
+                        f"LOD {r.lod:g}",
+                        (t, getattr(r, metric)),
+                        fontsize=7,
+                        textcoords="offset points",
+                        xytext=(4, 4),
+                    )
     axes[0].set_ylabel("test PSNR (dB), higher is better")
     axes[1].set_ylabel("test L1, lower is better")
     for ax in axes:

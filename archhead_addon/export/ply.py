@@ -20,16 +20,34 @@ import numpy as np
 from ..io.atomic import atomic_path
 from ..io.errors import InputError
 
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "<i2",
-              "int16": "<i2", "ushort": "<u2", "uint16": "<u2", "int": "<i4", "int32": "<i4",
-              "uint": "<u4", "uint32": "<u4", "float": "<f4", "float32": "<f4",
-              "double": "<f8", "float64": "<f8"}
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "<i2",
+    "int16": "<i2",
+    "ushort": "<u2",
+    "uint16": "<u2",
+    "int": "<i4",
+    "int32": "<i4",
+    "uint": "<u4",
+    "uint32": "<u4",
+    "float": "<f4",
+    "float32": "<f4",
+    "double": "<f8",
+    "float64": "<f8",
+}
 
 
 def property_names(n_rest: int) -> list[str]:
-    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{i}" for i in range(n_rest)] + ["opacity"]
-            + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(n_rest)]
+        + ["opacity"]
+        + [f"scale_{i}" for i in range(3)]
+        + [f"rot_{i}" for i in range(4)]
+    )
 
 
 def gaussians_to_rows(means, log_scales, quats, opacity_logits, sh) -> np.ndarray:
@@ -37,10 +55,18 @@ def gaussians_to_rows(means, log_scales, quats, opacity_logits, sh) -> np.ndarra
     sh = np.asarray(sh, np.float32)
     n = len(sh)
     rest = np.swapaxes(sh[:, 1:], 1, 2).reshape(n, -1)  # (N, 3, K-1): channel-major
-    return np.concatenate([np.asarray(means, np.float32), np.zeros((n, 3), np.float32),
-                           sh[:, 0], rest, np.asarray(opacity_logits, np.float32)[:, None],
-                           np.asarray(log_scales, np.float32), np.asarray(quats, np.float32)],
-                          axis=1)
+    return np.concatenate(
+        [
+            np.asarray(means, np.float32),
+            np.zeros((n, 3), np.float32),
+            sh[:, 0],
+            rest,
+            np.asarray(opacity_logits, np.float32)[:, None],
+            np.asarray(log_scales, np.float32),
+            np.asarray(quats, np.float32),
+        ],
+        axis=1,
+    )
 
 
 def write_ply(path, means, log_scales, quats, opacity_logits, sh) -> None:
@@ -74,8 +100,7 @@ def read_ply(path) -> dict[str, np.ndarray]:
             if element == "vertex":
                 count = int(tokens[2])
             elif count is None:
-                raise InputError(path, f"element {element}", "the vertex element must come "
-                                 "first")
+                raise InputError(path, f"element {element}", "the vertex element must come first")
             else:
                 break  # elements after the vertices are not read
         elif tokens[:1] == ["property"] and element == "vertex":
@@ -86,8 +111,12 @@ def read_ply(path) -> dict[str, np.ndarray]:
         raise InputError(path, "element vertex", "missing")
     dtype = np.dtype(fields)
     if len(data) - body < count * dtype.itemsize:
-        raise InputError(path, "vertex", f"truncated: {count} vertices need "
-                         f"{count * dtype.itemsize} bytes, {len(data) - body} present")
+        raise InputError(
+            path,
+            "vertex",
+            f"truncated: {count} vertices need "
+            f"{count * dtype.itemsize} bytes, {len(data) - body} present",
+        )
     table = np.frombuffer(data, dtype, count, body)
     return {name: table[name].copy() for name, _ in fields}
 
@@ -101,6 +130,10 @@ def rows_to_gaussians(props: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
     dc = stack([f"f_dc_{i}" for i in range(3)])
     rest = stack([f"f_rest_{i}" for i in range(n_rest)]).reshape(len(dc), 3, n_rest // 3)
-    return {"means": stack("xyz"), "log_scales": stack([f"scale_{i}" for i in range(3)]),
-            "quats": stack([f"rot_{i}" for i in range(4)]), "opacity_logits": props["opacity"],
-            "sh": np.concatenate([dc[:, None], np.swapaxes(rest, 1, 2)], axis=1)}
+    return {
+        "means": stack("xyz"),
+        "log_scales": stack([f"scale_{i}" for i in range(3)]),
+        "quats": stack([f"rot_{i}" for i in range(4)]),
+        "opacity_logits": props["opacity"],
+        "sh": np.concatenate([dc[:, None], np.swapaxes(rest, 1, 2)], axis=1),
+    }

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..avatar.decode_cache import SplatFrame
 from ..avatar.gaussians import quat_multiply
 from ..rotations import matrix_to_quaternion
 from ..splat.sh import degree_from_coeffs, sh_basis
@@ -44,8 +45,10 @@ def similarity_parts(matrix) -> tuple[float, np.ndarray, np.ndarray]:
     scale = float(np.cbrt(np.linalg.det(linear)))
     rotation = linear / scale if scale > 0 else linear
     if scale <= 0 or not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-5):
-        raise ValueError("Gaussians can only be moved by a rotation, a uniform scale and a "
-                         "translation (this transform shears, mirrors or scales unevenly)")
+        raise ValueError(
+            "Gaussians can only be moved by a rotation, a uniform scale and a "
+            "translation (this transform shears, mirrors or scales unevenly)"
+        )
     return scale, rotation, m[:3, 3]
 
 
@@ -56,6 +59,24 @@ def transform_gaussians(matrix, means, log_scales, quats, sh) -> tuple[np.ndarra
     turn = sh_rotation(rotation, degree_from_coeffs(sh.shape[1]))
     q = quat_multiply(matrix_to_quaternion(rotation)[None], np.asarray(quats, np.float64))
     f32 = np.float32
-    return ((np.asarray(means, np.float64) @ (scale * rotation).T + translation).astype(f32),
-            (np.asarray(log_scales, np.float64) + np.log(scale)).astype(f32), q.astype(f32),
-            np.einsum("ij,njc->nic", turn, sh).astype(f32))
+    return (
+        (np.asarray(means, np.float64) @ (scale * rotation).T + translation).astype(f32),
+        (np.asarray(log_scales, np.float64) + np.log(scale)).astype(f32),
+        q.astype(f32),
+        np.einsum("ij,njc->nic", turn, sh).astype(f32),
+    )
+
+
+def transform_frame(matrix, frame: SplatFrame) -> SplatFrame:
+    """The frame after `matrix` (opacities unchanged), fields matched by name."""
+    means, log_scales, quats, sh = transform_gaussians(
+        matrix, frame.means, frame.log_scales, frame.quats, frame.sh
+    )
+    return SplatFrame(
+        means=means,
+        log_scales=log_scales,
+        quats=quats,
+        opacity_logits=frame.opacity_logits,
+        sh=sh,
+        resolution=frame.resolution,
+    )

@@ -61,12 +61,15 @@ def batch_codes(model: FlameModel, codes: dict, xp=np):
         if value.ndim == 1:
             value = value[None]
         if value.ndim != 2 or value.shape[0] not in (1, batch):
-            raise ValueError(f"FLAME code '{key}': expected ({batch}, n), "
-                             f"found {tuple(value.shape)}")
+            raise ValueError(
+                f"FLAME code '{key}': expected ({batch}, n), found {tuple(value.shape)}"
+            )
         exact = key not in ("shape", "expr")
         if (exact and value.shape[1] != width) or value.shape[1] > width:
-            raise ValueError(f"FLAME code '{key}': width {value.shape[1]}, the model takes "
-                             f"{'exactly' if exact else 'at most'} {width}")
+            raise ValueError(
+                f"FLAME code '{key}': width {value.shape[1]}, the model takes "
+                f"{'exactly' if exact else 'at most'} {width}"
+            )
         out[key] = value
     unknown = set(codes) - set(limits) - {"static_offset"}
     if unknown:
@@ -87,8 +90,11 @@ def forward_full(model: FlameModel, dtype=np.float64, **codes) -> FlameOutput:
 
     def code(key):
         v = c[key]
-        return np.zeros((batch, v), dtype) if isinstance(v, int) else np.broadcast_to(
-            v, (batch, v.shape[1]))
+        return (
+            np.zeros((batch, v), dtype)
+            if isinstance(v, int)
+            else np.broadcast_to(v, (batch, v.shape[1]))
+        )
 
     n_v = model.n_verts
     v_shaped = np.broadcast_to(arrays["v_template"], (batch, n_v, 3)).copy()
@@ -98,11 +104,15 @@ def forward_full(model: FlameModel, dtype=np.float64, **codes) -> FlameOutput:
         if c[key] is not None:
             k = c[key].shape[1]
             coeffs = np.broadcast_to(c[key], (batch, k))
-            v_shaped += (coeffs @ arrays["shapedirs"][:, start:start + k].T).reshape(batch, n_v, 3)
+            v_shaped += (coeffs @ arrays["shapedirs"][:, start : start + k].T).reshape(
+                batch, n_v, 3
+            )
 
     joints_rest = np.einsum("jv,bvc->bjc", arrays["j_regressor"], v_shaped)
-    pose = np.stack([code("rotation"), code("neck"), code("jaw"),
-                     code("eyes")[:, :3], code("eyes")[:, 3:]], axis=1)  # (B,5,3)
+    pose = np.stack(
+        [code("rotation"), code("neck"), code("jaw"), code("eyes")[:, :3], code("eyes")[:, 3:]],
+        axis=1,
+    )  # (B,5,3)
     rot = axis_angle_to_matrix(pose)  # (B,5,3,3)
     feature = (rot[:, 1:] - np.eye(3, dtype=dtype)).reshape(batch, -1)  # (B,36)
     v_posed = v_shaped + (feature @ arrays["posedirs"].T).reshape(batch, n_v, 3)

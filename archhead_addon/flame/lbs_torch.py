@@ -26,8 +26,10 @@ class FlameLayer(torch.nn.Module):
     def forward_full(self, **codes):
         """(vertices (B,V,3), joints (B,5,3), transforms (B,5,4,4)) as in lbs.forward_full."""
         dtype, device = self.v_template.dtype, self.v_template.device
-        codes = {k: None if v is None else torch.as_tensor(v, dtype=dtype, device=device)
-                 for k, v in codes.items()}
+        codes = {
+            k: None if v is None else torch.as_tensor(v, dtype=dtype, device=device)
+            for k, v in codes.items()
+        }
         batch, c = batch_codes(self.model, codes)
 
         def code(key):
@@ -43,13 +45,14 @@ class FlameLayer(torch.nn.Module):
         for key, start in (("shape", 0), ("expr", self.model.n_shape)):
             if c[key] is not None:
                 k = c[key].shape[1]
-                dirs = self.shapedirs[:, start:start + k]
+                dirs = self.shapedirs[:, start : start + k]
                 v_shaped = v_shaped + (code(key) @ dirs.T).reshape(batch, n_v, 3)
 
         joints_rest = torch.einsum("jv,bvc->bjc", self.j_regressor, v_shaped)
         eyes = code("eyes")
-        pose = torch.stack([code("rotation"), code("neck"), code("jaw"),
-                            eyes[:, :3], eyes[:, 3:]], dim=1)
+        pose = torch.stack(
+            [code("rotation"), code("neck"), code("jaw"), eyes[:, :3], eyes[:, 3:]], dim=1
+        )
         rot = axis_angle_to_matrix(pose)
         eye = torch.eye(3, dtype=dtype, device=device)
         feature = (rot[:, 1:] - eye).reshape(batch, -1)

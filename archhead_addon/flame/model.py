@@ -62,13 +62,25 @@ class FlameModel:
         """The model in file form (the keys of the module docstring)."""
         kintree = np.stack([self.parents, np.arange(N_JOINTS)]).astype(np.int64)
         kintree[0, self.parents < 0] = 4294967295  # the official files' root marker
-        out = {"v_template": self.v_template, "f": self.faces, "shapedirs": self.shapedirs,
-               "posedirs": self.posedirs, "J_regressor": self.j_regressor,
-               "weights": self.weights, "kintree_table": kintree,
-               "n_shape": np.int64(self.n_shape), "model_id": np.str_(self.model_id)}
-        optional = {"vt": self.uv, "ft": self.uv_faces, "lip_ring_upper": self.lip_ring_upper,
-                    "lip_ring_lower": self.lip_ring_lower, "vertex_parts": self.vertex_parts,
-                    "albedo": self.albedo}
+        out = {
+            "v_template": self.v_template,
+            "f": self.faces,
+            "shapedirs": self.shapedirs,
+            "posedirs": self.posedirs,
+            "J_regressor": self.j_regressor,
+            "weights": self.weights,
+            "kintree_table": kintree,
+            "n_shape": np.int64(self.n_shape),
+            "model_id": np.str_(self.model_id),
+        }
+        optional = {
+            "vt": self.uv,
+            "ft": self.uv_faces,
+            "lip_ring_upper": self.lip_ring_upper,
+            "lip_ring_lower": self.lip_ring_lower,
+            "vertex_parts": self.vertex_parts,
+            "albedo": self.albedo,
+        }
         out.update({k: v for k, v in optional.items() if v is not None})
         return out
 
@@ -91,8 +103,9 @@ def load_model(path=None) -> FlameModel:
     else:
         arrays = safe_load(path)
         if not isinstance(arrays, dict):
-            raise InputError(path, None,
-                             f"expected a dict of arrays, found {type(arrays).__name__}")
+            raise InputError(
+                path, None, f"expected a dict of arrays, found {type(arrays).__name__}"
+            )
     return model_from_arrays(arrays, source=str(path))
 
 
@@ -128,15 +141,20 @@ def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
         if a.shape[:2] != want:
             raise InputError(source, key, f"expected ({n_v}, 3, K), found {a.shape}")
     if posedirs.shape[2] != N_POSE_CORRECTIVES:
-        raise InputError(source, "posedirs", f"expected {N_POSE_CORRECTIVES} pose correctives "
-                         f"(4 joints x 9), found {posedirs.shape[2]}")
+        raise InputError(
+            source,
+            "posedirs",
+            f"expected {N_POSE_CORRECTIVES} pose correctives "
+            f"(4 joints x 9), found {posedirs.shape[2]}",
+        )
     if jreg.shape != (N_JOINTS, n_v):
         raise InputError(source, "J_regressor", f"expected ({N_JOINTS}, {n_v}), found {jreg.shape}")
     if weights.shape != (n_v, N_JOINTS):
         raise InputError(source, "weights", f"expected ({n_v}, {N_JOINTS}), found {weights.shape}")
     if kintree.shape != (2, N_JOINTS):
-        raise InputError(source, "kintree_table",
-                         f"expected (2, {N_JOINTS}), found {kintree.shape}")
+        raise InputError(
+            source, "kintree_table", f"expected (2, {N_JOINTS}), found {kintree.shape}"
+        )
     parents = _parents(kintree, source)
     n_total = shapedirs.shape[2]
     n_shape = int(arrays["n_shape"]) if "n_shape" in arrays else min(300, n_total)
@@ -146,17 +164,30 @@ def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
         warn_input(source, "shapedirs", "no expression components; expressions will be ignored")
     model_id = str(arrays["model_id"]) if "model_id" in arrays else _topology_id(v, faces)
     opt = {}
-    for key, name, dtype, ndim in (("vt", "uv", np.float64, 2), ("ft", "uv_faces", np.int64, 2),
-                                   ("lip_ring_upper", "lip_ring_upper", np.int64, 1),
-                                   ("lip_ring_lower", "lip_ring_lower", np.int64, 1),
-                                   ("vertex_parts", "vertex_parts", np.uint8, 1),
-                                   ("albedo", "albedo", np.uint8, 3)):
+    for key, name, dtype, ndim in (
+        ("vt", "uv", np.float64, 2),
+        ("ft", "uv_faces", np.int64, 2),
+        ("lip_ring_upper", "lip_ring_upper", np.int64, 1),
+        ("lip_ring_lower", "lip_ring_lower", np.int64, 1),
+        ("vertex_parts", "vertex_parts", np.uint8, 1),
+        ("albedo", "albedo", np.uint8, 3),
+    ):
         if key in arrays:
             opt[name] = _get(arrays, key, source, ndim, dtype)
     _check_optional(opt, n_v, faces.shape[0], source)
-    return FlameModel(v_template=v, faces=faces, shapedirs=shapedirs, n_shape=n_shape,
-                      posedirs=posedirs, j_regressor=jreg, weights=weights, parents=parents,
-                      model_id=model_id, source=source, **opt)
+    return FlameModel(
+        v_template=v,
+        faces=faces,
+        shapedirs=shapedirs,
+        n_shape=n_shape,
+        posedirs=posedirs,
+        j_regressor=jreg,
+        weights=weights,
+        parents=parents,
+        model_id=model_id,
+        source=source,
+        **opt,
+    )
 
 
 def _parents(kintree: np.ndarray, source) -> np.ndarray:
@@ -168,8 +199,12 @@ def _parents(kintree: np.ndarray, source) -> np.ndarray:
         parents[j] = p if 0 <= p < N_JOINTS else -1
     roots = np.flatnonzero(parents < 0)
     if roots.tolist() != [0] or any(parents[j] >= j for j in range(1, N_JOINTS)):
-        raise InputError(source, "kintree_table", "joint 0 must be the only root and parents "
-                         f"must come before children; parents are {parents.tolist()}")
+        raise InputError(
+            source,
+            "kintree_table",
+            "joint 0 must be the only root and parents "
+            f"must come before children; parents are {parents.tolist()}",
+        )
     return parents
 
 

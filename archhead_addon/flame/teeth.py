@@ -16,10 +16,40 @@ from .model import PART_MOUTH, FlameModel
 # FLAME 2020 / 2023 topology (5,023 vertices): the mouth opening's upper and lower edges,
 # left corner to right corner (facts from the GaussianAvatars project).
 FLAME_N_VERTS = 5023
-FLAME_LIP_RING_UPPER = (1713, 1715, 1716, 1735, 1696, 1694, 1657, 3543,
-                        2774, 2811, 2813, 2850, 2833, 2832, 2830)
-FLAME_LIP_RING_LOWER = (1576, 1577, 1773, 1774, 1795, 1802, 1865, 3503,
-                        2948, 2905, 2898, 2881, 2880, 2713, 2712)
+FLAME_LIP_RING_UPPER = (
+    1713,
+    1715,
+    1716,
+    1735,
+    1696,
+    1694,
+    1657,
+    3543,
+    2774,
+    2811,
+    2813,
+    2850,
+    2833,
+    2832,
+    2830,
+)
+FLAME_LIP_RING_LOWER = (
+    1576,
+    1577,
+    1773,
+    1774,
+    1795,
+    1802,
+    1865,
+    3503,
+    2948,
+    2905,
+    2898,
+    2881,
+    2880,
+    2713,
+    2712,
+)
 UPPER_JOINT, LOWER_JOINT = 1, 2  # neck, jaw
 TEETH_COLOUR = (236, 228, 210)  # ivory, painted into the albedo under the teeth island
 
@@ -90,15 +120,19 @@ def add_teeth(model: FlameModel, columns: int = 24) -> FlameModel:
     n_old = model.n_verts
     per_arch = 4 * columns
     new_v = np.concatenate([a.reshape(-1, 3) for a in arches])
-    faces = np.concatenate([_strip_faces(4, columns, n_old),
-                            _strip_faces(4, columns, n_old + per_arch)])
+    faces = np.concatenate(
+        [_strip_faces(4, columns, n_old), _strip_faces(4, columns, n_old + per_arch)]
+    )
     faces = _orient_outward(faces, np.concatenate([model.v_template, new_v]), columns)
 
-    lip_dirs = (model.shapedirs[upper_idx, :, :model.n_shape]
-                + model.shapedirs[lower_idx, :, :model.n_shape]) / 2
+    lip_dirs = (
+        model.shapedirs[upper_idx, :, : model.n_shape]
+        + model.shapedirs[lower_idx, :, : model.n_shape]
+    ) / 2
     teeth_dirs = np.zeros((2 * per_arch, 3, model.shapedirs.shape[2]))
-    teeth_dirs[:, :, :model.n_shape] = np.tile(along(lip_dirs.reshape(len(upper_idx), -1))
-                                               .reshape(columns, 3, -1), (8, 1, 1))
+    teeth_dirs[:, :, : model.n_shape] = np.tile(
+        along(lip_dirs.reshape(len(upper_idx), -1)).reshape(columns, 3, -1), (8, 1, 1)
+    )
     weights = np.zeros((2 * per_arch, model.weights.shape[1]))
     weights[:per_arch, UPPER_JOINT] = 1
     weights[per_arch:, LOWER_JOINT] = 1
@@ -110,12 +144,15 @@ def add_teeth(model: FlameModel, columns: int = 24) -> FlameModel:
         j_regressor=np.concatenate([model.j_regressor, np.zeros((5, 2 * per_arch))], axis=1),
         weights=np.concatenate([model.weights, weights]),
         model_id=f"{model.model_id}+teeth",
-        extras={**model.extras, "teeth": {"first_vertex": n_old, "per_arch": per_arch,
-                                           "first_face": len(model.faces)}},
+        extras={
+            **model.extras,
+            "teeth": {"first_vertex": n_old, "per_arch": per_arch, "first_face": len(model.faces)},
+        },
     )
     if model.vertex_parts is not None:
         changes["vertex_parts"] = np.concatenate(
-            [model.vertex_parts, np.full(2 * per_arch, PART_MOUTH, np.uint8)])
+            [model.vertex_parts, np.full(2 * per_arch, PART_MOUTH, np.uint8)]
+        )
     if model.uv is not None:
         changes.update(_teeth_uvs(model, columns, faces - n_old))
     return model.replace(**changes)
@@ -143,18 +180,21 @@ def _teeth_uvs(model: FlameModel, columns: int, local_faces: np.ndarray) -> dict
     half = (u1 - u0) / 2
     uvs = []
     for arch in range(2):
-        us = np.linspace(u0 + arch * half + 0.05 * half, u0 + (arch + 1) * half - 0.05 * half,
-                         columns)
+        us = np.linspace(
+            u0 + arch * half + 0.05 * half, u0 + (arch + 1) * half - 0.05 * half, columns
+        )
         vs = np.linspace(v0, v1, 4)
         uu, vv = np.meshgrid(us, vs)
         uvs.append(np.stack([uu, vv], -1).reshape(-1, 2))
     n_vt = len(model.uv)
-    out = {"uv": np.concatenate([model.uv, *uvs]),
-           "uv_faces": np.concatenate([model.uv_faces, local_faces + n_vt])}
+    out = {
+        "uv": np.concatenate([model.uv, *uvs]),
+        "uv_faces": np.concatenate([model.uv_faces, local_faces + n_vt]),
+    }
     if model.albedo is not None:
         albedo = model.albedo.copy()
         h, w = albedo.shape[:2]
         rows = slice(int((1 - v1) * h), int(np.ceil((1 - v0) * h)))  # image rows run down in v
-        albedo[rows, int(u0 * w):int(np.ceil(u1 * w))] = TEETH_COLOUR
+        albedo[rows, int(u0 * w) : int(np.ceil(u1 * w))] = TEETH_COLOUR
         out["albedo"] = albedo
     return out

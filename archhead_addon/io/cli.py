@@ -13,8 +13,7 @@ def run_command(command: Callable[[], int | None]) -> int:
     """Run `command`; input warnings print as they come, an InputError ends it with status 2."""
     with warnings.catch_warnings():
         warnings.simplefilter("always", InputWarning)
-        warnings.showwarning = lambda message, *rest: print(f"warning: {message}",
-                                                            file=sys.stderr)
+        warnings.showwarning = lambda message, *rest: print(f"warning: {message}", file=sys.stderr)
         try:
             return command() or 0
         except InputError as exc:

@@ -116,11 +116,23 @@ def _frombuffer(buf, dtype, shape, order):
     return array.reshape(shape, order=order).copy()
 
 
-_SPARSE = {"csc_matrix": _CscStub, "csc_array": _CscStub, "csr_matrix": _CsrStub,
-           "csr_array": _CsrStub, "coo_matrix": _CooStub, "coo_array": _CooStub}
+_SPARSE = {
+    "csc_matrix": _CscStub,
+    "csc_array": _CscStub,
+    "csr_matrix": _CsrStub,
+    "csr_array": _CsrStub,
+    "coo_matrix": _CooStub,
+    "coo_array": _CooStub,
+}
 
-_BUILTINS = {"object": object, "set": set, "frozenset": frozenset, "bytearray": bytearray,
-             "complex": complex, "slice": slice}
+_BUILTINS = {
+    "object": object,
+    "set": set,
+    "frozenset": frozenset,
+    "bytearray": bytearray,
+    "complex": complex,
+    "slice": slice,
+}
 
 
 class RestrictedUnpickler(pickle.Unpickler):
@@ -145,9 +157,12 @@ class RestrictedUnpickler(pickle.Unpickler):
             return ChumpyStub
         if module.startswith("scipy.sparse") and name in _SPARSE:
             return _SPARSE[name]
-        raise InputError(self._source, None,
-                         f"pickle refers to '{module}.{name}', which is not on the allow-list "
-                         "of classes this reader accepts; nothing was executed")
+        raise InputError(
+            self._source,
+            None,
+            f"pickle refers to '{module}.{name}', which is not on the allow-list "
+            "of classes this reader accepts; nothing was executed",
+        )
 
 
 def resolve(obj, where: str = "<input>"):
@@ -176,10 +191,19 @@ def safe_load(source, *, extra=None, **kwargs):
         obj = RestrictedUnpickler(io.BytesIO(data), source=name, extra=extra, **kwargs).load()
     except InputError:
         raise
-    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError,
-            IndexError, KeyError, UnicodeDecodeError) as exc:
-        raise InputError(name, None,
-                         f"not a readable pickle ({type(exc).__name__}: {exc})") from exc
+    except (
+        pickle.UnpicklingError,
+        EOFError,
+        ValueError,
+        TypeError,
+        AttributeError,
+        IndexError,
+        KeyError,
+        UnicodeDecodeError,
+    ) as exc:
+        raise InputError(
+            name, None, f"not a readable pickle ({type(exc).__name__}: {exc})"
+        ) from exc
     try:
         return resolve(obj, name)
     except ValueError as exc:

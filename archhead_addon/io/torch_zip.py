@@ -40,9 +40,17 @@ from .safe_pickle import RestrictedUnpickler, resolve
 _LEGACY_MAGIC = b"\x80\x02\x8a\x0a" + (0x1950A86A20F9469CFC6C).to_bytes(10, "little")
 
 _TYPED_STORAGES = {
-    "DoubleStorage": "f8", "FloatStorage": "f4", "HalfStorage": "f2", "BFloat16Storage": "u2",
-    "LongStorage": "i8", "IntStorage": "i4", "ShortStorage": "i2", "CharStorage": "i1",
-    "ByteStorage": "u1", "BoolStorage": "?", "ComplexDoubleStorage": "c16",
+    "DoubleStorage": "f8",
+    "FloatStorage": "f4",
+    "HalfStorage": "f2",
+    "BFloat16Storage": "u2",
+    "LongStorage": "i8",
+    "IntStorage": "i4",
+    "ShortStorage": "i2",
+    "CharStorage": "i1",
+    "ByteStorage": "u1",
+    "BoolStorage": "?",
+    "ComplexDoubleStorage": "c16",
     "ComplexFloatStorage": "c8",
 }
 _V3_DTYPES = {"uint16": "u2", "uint32": "u4", "uint64": "u8"}
@@ -82,11 +90,14 @@ class _Storage:
         else:
             last = offset + sum((n - 1) * s for n, s in zip(size, stride, strict=True))
             if last >= self.array.size:
-                raise ValueError(f"tensor (offset {offset}, size {size}, stride {stride}) reaches "
-                                 f"element {last} of a storage of {self.array.size} elements")
+                raise ValueError(
+                    f"tensor (offset {offset}, size {size}, stride {stride}) reaches "
+                    f"element {last} of a storage of {self.array.size} elements"
+                )
             item = self.array.itemsize
             out = np.lib.stride_tricks.as_strided(
-                self.array[offset:], size, [s * item for s in stride], writeable=False).copy()
+                self.array[offset:], size, [s * item for s in stride], writeable=False
+            ).copy()
         out = out.astype(out.dtype.newbyteorder("="), copy=False)
         if self.bfloat16:  # bfloat16 is the upper half of a float32
             out = (out.astype(np.uint32) << 16).view(np.float32)
@@ -95,20 +106,21 @@ class _Storage:
 
 def _int_tuple(values, what: str) -> tuple[int, ...]:
     if not isinstance(values, tuple | list) or not all(
-            isinstance(v, int) and v >= 0 for v in values):
+        isinstance(v, int) and v >= 0 for v in values
+    ):
         raise ValueError(f"bad tensor {what}: {values!r:.80}")
     return tuple(values)
 
 
-def _rebuild_tensor_v2(storage, offset, size, stride, requires_grad=False, hooks=None,
-                       metadata=None):
+def _rebuild_tensor_v2(
+    storage, offset, size, stride, requires_grad=False, hooks=None, metadata=None
+):
     if not isinstance(storage, _Storage):
         raise ValueError("tensor without a storage")
     return storage.view(offset, size, stride)
 
 
-def _rebuild_tensor_v3(storage, offset, size, stride, requires_grad, hooks, dtype,
-                       metadata=None):
+def _rebuild_tensor_v3(storage, offset, size, stride, requires_grad, hooks, dtype, metadata=None):
     if not isinstance(storage, _Storage) or not isinstance(dtype, _TorchDtype):
         raise ValueError("tensor without a byte storage and dtype")
     raw = storage.array
@@ -141,9 +153,14 @@ class _TorchUnpickler(RestrictedUnpickler):
         self._storages: dict[str, _Storage] = {}
 
     def persistent_load(self, pid):
-        if not (isinstance(pid, tuple) and len(pid) == 5 and pid[0] == "storage"
-                and isinstance(pid[1], _StorageType) and isinstance(pid[2], str)
-                and isinstance(pid[4], int)):
+        if not (
+            isinstance(pid, tuple)
+            and len(pid) == 5
+            and pid[0] == "storage"
+            and isinstance(pid[1], _StorageType)
+            and isinstance(pid[2], str)
+            and isinstance(pid[4], int)
+        ):
             raise pickle.UnpicklingError(f"unsupported persistent id {pid!r:.80}")
         _, stype, key, _location, numel = pid
         if key not in self._storages:
@@ -153,11 +170,14 @@ class _TorchUnpickler(RestrictedUnpickler):
             except KeyError:
                 raise ValueError(f"storage '{key}' is missing from the archive") from None
             if len(raw) < numel * dtype.itemsize:
-                raise ValueError(f"storage '{key}' holds {len(raw)} bytes, fewer than "
-                                 f"{numel} elements of {stype.name}")
+                raise ValueError(
+                    f"storage '{key}' holds {len(raw)} bytes, fewer than "
+                    f"{numel} elements of {stype.name}"
+                )
             array = np.frombuffer(raw, dtype=dtype, count=numel)
-            self._storages[key] = _Storage(array, bfloat16=stype.name == "BFloat16Storage",
-                                           big_endian=self._big)
+            self._storages[key] = _Storage(
+                array, bfloat16=stype.name == "BFloat16Storage", big_endian=self._big
+            )
         return self._storages[key]
 
 
@@ -177,33 +197,58 @@ def load_torch_file(path):
         with open(path, "rb") as f:
             head = f.read(len(_LEGACY_MAGIC))
         if head == _LEGACY_MAGIC:
-            raise InputError(path, None, "legacy torch.save format (before torch 1.6, not a zip "
-                             "archive) is not supported; load it with torch and save it again")
-        raise InputError(path, None, "not a torch.save zip archive (truncated or another kind "
-                         "of file)")
+            raise InputError(
+                path,
+                None,
+                "legacy torch.save format (before torch 1.6, not a zip "
+                "archive) is not supported; load it with torch and save it again",
+            )
+        raise InputError(
+            path, None, "not a torch.save zip archive (truncated or another kind of file)"
+        )
     try:
         with zipfile.ZipFile(path) as archive:
-            pickles = [n for n in archive.namelist()
-                       if n.endswith("/data.pkl") and n.count("/") == 1]
+            pickles = [
+                n for n in archive.namelist() if n.endswith("/data.pkl") and n.count("/") == 1
+            ]
             if len(pickles) != 1:
-                raise InputError(path, None, f"expected one '<name>/data.pkl' entry in the zip "
-                                 f"archive, found {len(pickles)}")
+                raise InputError(
+                    path,
+                    None,
+                    f"expected one '<name>/data.pkl' entry in the zip "
+                    f"archive, found {len(pickles)}",
+                )
             prefix = pickles[0][: -len("data.pkl")]
             names = set(archive.namelist())
-            order = (archive.read(prefix + "byteorder").decode("ascii", "replace").strip()
-                     if prefix + "byteorder" in names else "little")
+            order = (
+                archive.read(prefix + "byteorder").decode("ascii", "replace").strip()
+                if prefix + "byteorder" in names
+                else "little"
+            )
             if order not in ("little", "big"):
                 raise InputError(path, None, f"unknown byteorder '{order}' in the archive")
             data = archive.read(pickles[0])
-            obj = _TorchUnpickler(io.BytesIO(data), archive, prefix, order == "big",
-                                  source=str(path)).load()
+            obj = _TorchUnpickler(
+                io.BytesIO(data), archive, prefix, order == "big", source=str(path)
+            ).load()
     except InputError:
         raise
-    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, pickle.UnpicklingError,
-            ValueError, TypeError, AttributeError, IndexError, KeyError,
-            UnicodeDecodeError) as exc:
-        raise InputError(path, None, f"corrupt torch.save archive ({type(exc).__name__}: "
-                         f"{exc})") from exc
+    except (
+        zipfile.BadZipFile,
+        zlib.error,
+        OSError,
+        EOFError,
+        pickle.UnpicklingError,
+        ValueError,
+        TypeError,
+        AttributeError,
+        IndexError,
+        KeyError,
+        UnicodeDecodeError,
+    ) as exc:
+        raise InputError(
+            path, None, f"corrupt torch.save archive ({type(exc).__name__}: {exc})"
+        ) from exc
     try:
         return resolve(obj, str(path))
     except ValueError as exc:

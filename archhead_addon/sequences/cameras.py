@@ -29,8 +29,9 @@ def w2c_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def intrinsics(fx, fy, cx, cy) -> np.ndarray:
     """K (...,3,3) from focal lengths and principal point, all in pixels."""
-    fx, fy, cx, cy = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64)
-                                           for v in (fx, fy, cx, cy)))
+    fx, fy, cx, cy = np.broadcast_arrays(
+        *(np.asarray(v, dtype=np.float64) for v in (fx, fy, cx, cy))
+    )
     K = np.zeros((*fx.shape, 3, 3))
     K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2], K[..., 2, 2] = fx, fy, cx, cy, 1.0
     return K

@@ -34,8 +34,15 @@ from .sequence import OPTIONAL, PER_FRAME, Sequence
 
 FORMAT_VERSION = 1
 NAME = "canonical"
-_META = ("format_version", "fps", "frame_ids", "image_size", "source_format", "source_path",
-         "static_offset")
+_META = (
+    "format_version",
+    "fps",
+    "frame_ids",
+    "image_size",
+    "source_format",
+    "source_path",
+    "static_offset",
+)
 
 
 def write_canonical(seq: Sequence, path) -> None:
@@ -46,9 +53,15 @@ def write_canonical(seq: Sequence, path) -> None:
         arrays["static_offset"] = seq.static_offset
     if seq.image_size is not None:
         arrays["image_size"] = np.asarray(seq.image_size, dtype=np.int64)
-    save_npz_atomic(path, format_version=np.int64(FORMAT_VERSION), fps=np.float64(seq.fps),
-                    frame_ids=seq.frame_ids, source_format=np.str_(seq.format),
-                    source_path=np.str_(seq.source), **arrays)
+    save_npz_atomic(
+        path,
+        format_version=np.int64(FORMAT_VERSION),
+        fps=np.float64(seq.fps),
+        frame_ids=seq.frame_ids,
+        source_format=np.str_(seq.format),
+        source_path=np.str_(seq.source),
+        **arrays,
+    )
 
 
 def is_canonical(arrays: dict) -> bool:
@@ -62,24 +75,35 @@ def read_canonical(path, *, fps=None) -> Sequence:
         raise InputError(path, "format_version", "missing: not an ArchHead sequence file")
     version = arrays["format_version"]
     if version.shape != () or version.dtype.kind not in "iu":
-        raise InputError(path, "format_version", f"expected an integer scalar, found "
-                         f"{version.dtype} {version.shape}")
+        raise InputError(
+            path,
+            "format_version",
+            f"expected an integer scalar, found {version.dtype} {version.shape}",
+        )
     if int(version) > FORMAT_VERSION:
-        raise InputError(path, "format_version", f"version {int(version)} is newer than this "
-                         f"reader ({FORMAT_VERSION}); update ArchHead")
+        raise InputError(
+            path,
+            "format_version",
+            f"version {int(version)} is newer than this reader ({FORMAT_VERSION}); update ArchHead",
+        )
     unknown = sorted(set(arrays) - set(PER_FRAME) - set(_META))
     if unknown:
         warn_input(path, None, f"unknown keys ignored: {', '.join(unknown)}")
-    codes = {name: get(arrays, name, path, ("T",) + (width or ("N",)), along="frame")
-             for name, width in PER_FRAME.items() if name in arrays or name not in OPTIONAL}
+    codes = {
+        name: get(arrays, name, path, ("T",) + (width or ("N",)), along="frame")
+        for name, width in PER_FRAME.items()
+        if name in arrays or name not in OPTIONAL
+    }
     size = get(arrays, "image_size", path, (2,), default=None)
     frame_ids = arrays.get("frame_ids")
     if frame_ids is None or frame_ids.dtype.kind not in "iu":
         raise InputError(path, "frame_ids", "missing or not integers")
     return Sequence(
-        **codes, fps=float(get(arrays, "fps", path, ())) if fps is None else fps,
+        **codes,
+        fps=float(get(arrays, "fps", path, ())) if fps is None else fps,
         frame_ids=frame_ids,
         image_size=None if size is None else tuple(int(v) for v in size),
         static_offset=get(arrays, "static_offset", path, ("V", 3), along="vertex", default=None),
-        source=str(path), format=NAME,
+        source=str(path),
+        format=NAME,
     ).validate()

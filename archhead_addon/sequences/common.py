@@ -30,16 +30,25 @@ def load_npz(path) -> dict[str, np.ndarray]:
     except InputError:
         raise
     except (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError) as exc:
-        raise InputError(path, None, f"not a readable npz archive ({type(exc).__name__}: "
-                         f"{exc})") from exc
+        raise InputError(
+            path, None, f"not a readable npz archive ({type(exc).__name__}: {exc})"
+        ) from exc
 
 
 def _describe(shape) -> str:
     return "(" + ", ".join(str(d) for d in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
-def get(arrays: dict, key: str, path, *shapes, frame=None, along: str | None = None,
-        default=_MISSING, name: str | None = None) -> np.ndarray:
+def get(
+    arrays: dict,
+    key: str,
+    path,
+    *shapes,
+    frame=None,
+    along: str | None = None,
+    default=_MISSING,
+    name: str | None = None,
+) -> np.ndarray:
     """`arrays[key]` as float64 in one of `shapes` (ints fixed, strings any size), finite.
 
     A NaN/Inf error says where: `frame` names the frame of a per-frame file; `along` names what
@@ -54,11 +63,14 @@ def get(arrays: dict, key: str, path, *shapes, frame=None, along: str | None = N
     try:
         value = np.asarray(arrays[key], dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise InputError(path, label, f"not a numeric array ({type(arrays[key]).__name__})"
-                         ) from exc
-    if not any(len(s) == value.ndim and all(isinstance(d, str) or d == n
-                                            for d, n in zip(s, value.shape, strict=True))
-               for s in shapes):
+        raise InputError(
+            path, label, f"not a numeric array ({type(arrays[key]).__name__})"
+        ) from exc
+    if not any(
+        len(s) == value.ndim
+        and all(isinstance(d, str) or d == n for d, n in zip(s, value.shape, strict=True))
+        for s in shapes
+    ):
         want = " or ".join(_describe(s) for s in shapes)
         raise InputError(path, label, f"expected shape {want}, found {_describe(value.shape)}")
     bad = ~np.isfinite(value)
@@ -88,29 +100,41 @@ def numbered_files(folder: Path, suffix: str) -> list[tuple[int, Path]]:
     parsed = {p: _NUMBERED.match(p.name[: -len(suffix)]) for p in files}
     unnumbered = [p.name for p, m in parsed.items() if m is None]
     if unnumbered:
-        raise InputError(folder, None, f"files without a frame number in their name: "
-                         f"{_names(unnumbered)}")
+        raise InputError(
+            folder, None, f"files without a frame number in their name: {_names(unnumbered)}"
+        )
     prefixes = Counter(m.group(1) for m in parsed.values())
     if len(prefixes) > 1:
         usual = prefixes.most_common(1)[0][0]
-        raise InputError(folder, None, f"mixed frame file names (most start with '{usual}'): "
-                         f"{_names(p.name for p, m in parsed.items() if m.group(1) != usual)}")
+        raise InputError(
+            folder,
+            None,
+            f"mixed frame file names (most start with '{usual}'): "
+            f"{_names(p.name for p, m in parsed.items() if m.group(1) != usual)}",
+        )
     digits = {p: m.group(2) for p, m in parsed.items()}
     by_number: dict[int, list[str]] = {}
     for p, d in digits.items():
         by_number.setdefault(int(d), []).append(p.name)
     duplicates = [names for names in by_number.values() if len(names) > 1]
     if duplicates:
-        raise InputError(folder, None, f"duplicate frame numbers: "
-                         f"{'; '.join(_names(d) for d in duplicates)}")
+        raise InputError(
+            folder, None, f"duplicate frame numbers: {'; '.join(_names(d) for d in duplicates)}"
+        )
     padded = Counter(len(d) for d in digits.values() if len(d) > 1 and d.startswith("0"))
     if padded:
         width = padded.most_common(1)[0][0]
-        odd = [p.name for p, d in digits.items()
-               if len(d) < width or (d.startswith("0") and len(d) not in (1, width))]
+        odd = [
+            p.name
+            for p, d in digits.items()
+            if len(d) < width or (d.startswith("0") and len(d) not in (1, width))
+        ]
         if odd:
-            raise InputError(folder, None, f"mixed frame numbering (most are zero-padded to "
-                             f"{width} digits): {_names(odd)}")
+            raise InputError(
+                folder,
+                None,
+                f"mixed frame numbering (most are zero-padded to {width} digits): {_names(odd)}",
+            )
     return sorted((int(d), p) for p, d in digits.items())
 
 
@@ -130,6 +154,10 @@ def resolve_fps(fps, path) -> float:
     """The caller's fps, or DEFAULT_FPS with a warning for formats that store none."""
     if fps is not None:
         return float(fps)
-    warn_input(path, "fps", f"this format stores no frame rate; assuming {DEFAULT_FPS:g} fps "
-               "(pass fps= or --fps to set it)")
+    warn_input(
+        path,
+        "fps",
+        f"this format stores no frame rate; assuming {DEFAULT_FPS:g} fps "
+        "(pass fps= or --fps to set it)",
+    )
     return DEFAULT_FPS

@@ -7,8 +7,14 @@ import numpy as np
 from .sequence import Sequence
 
 
-def demo_sequence(frames: int = 120, n_shape: int = 300, n_expr: int = 100, fps: float = 30.0,
-                  image_size: tuple[int, int] = (512, 512), distance: float = 0.7) -> Sequence:
+def demo_sequence(
+    frames: int = 120,
+    n_shape: int = 300,
+    n_expr: int = 100,
+    fps: float = 30.0,
+    image_size: tuple[int, int] = (512, 512),
+    distance: float = 0.7,
+) -> Sequence:
     """Smooth expressions decaying over components, jaw talking, a nodding, turning head,
     glancing eyes, and a fixed camera `distance` metres in front of the face."""
     t = np.arange(frames) / fps
@@ -28,7 +34,19 @@ def demo_sequence(frames: int = 120, n_shape: int = 300, n_expr: int = 100, fps:
     w2c = np.tile(np.eye(4), (frames, 1, 1))
     w2c[:, 1, 1] = w2c[:, 2, 2] = -1  # camera on +z looking at the face (-z), y down
     w2c[:, 2, 3] = distance
-    return Sequence(shape=np.zeros((frames, n_shape)), expr=expr, jaw=jaw, neck=neck, eyes=eyes,
-                    rotation=rotation, translation=np.zeros((frames, 3)), fps=fps,
-                    frame_ids=np.arange(frames), source="demo", format="canonical",
-                    K=np.tile(K, (frames, 1, 1)), w2c=w2c, image_size=image_size)
+    return Sequence(
+        shape=np.zeros((frames, n_shape)),
+        expr=expr,
+        jaw=jaw,
+        neck=neck,
+        eyes=eyes,
+        rotation=rotation,
+        translation=np.zeros((frames, 3)),
+        fps=fps,
+        frame_ids=np.arange(frames),
+        source="demo",
+        format="canonical",
+        K=np.tile(K, (frames, 1, 1)),
+        w2c=w2c,
+        image_size=image_size,
+    )

@@ -40,14 +40,24 @@ def read_driving_clip(path, *, fps=None) -> Sequence:
         raise InputError(path, None, "file not found")
     data = _load_object(path)
     if not isinstance(data, dict):
-        raise InputError(path, None, f"expected a dict with exp, jaw and fps, found "
-                         f"{type(data).__name__}")
+        raise InputError(
+            path, None, f"expected a dict with exp, jaw and fps, found {type(data).__name__}"
+        )
     expr = get(data, "exp", path, ("T", "E"), along="frame")
     n = len(expr)
     jaw = get(data, "jaw", path, (n, 3), along="frame")
     stored_fps = float(get(data, "fps", path, (), (1,)).reshape(()))
     zeros = np.zeros((n, 3))
-    return Sequence(shape=np.zeros((n, 0)), expr=expr, jaw=jaw, neck=zeros,
-                    eyes=np.zeros((n, 6)), rotation=zeros, translation=zeros,
-                    fps=stored_fps if fps is None else fps, frame_ids=np.arange(n),
-                    source=str(path), format=NAME).validate()
+    return Sequence(
+        shape=np.zeros((n, 0)),
+        expr=expr,
+        jaw=jaw,
+        neck=zeros,
+        eyes=np.zeros((n, 6)),
+        rotation=zeros,
+        translation=zeros,
+        fps=stored_fps if fps is None else fps,
+        frame_ids=np.arange(n),
+        source=str(path),
+        format=NAME,
+    ).validate()

@@ -41,25 +41,32 @@ def camera_to_world(cam: np.ndarray) -> np.ndarray:
     """4x4 camera-to-world (OpenGL camera axes) from the tracker's 6-value `cam`."""
     a0, a1, a2 = cam[:3]
     c2w = np.eye(4)
-    c2w[:3, :3] = (axis_angle_to_matrix(np.array([0.0, 0.0, a2]))
-                   @ axis_angle_to_matrix(np.array([0.0, a0, 0.0]))
-                   @ axis_angle_to_matrix(np.array([a1, 0.0, 0.0])))
+    c2w[:3, :3] = (
+        axis_angle_to_matrix(np.array([0.0, 0.0, a2]))
+        @ axis_angle_to_matrix(np.array([0.0, a0, 0.0]))
+        @ axis_angle_to_matrix(np.array([a1, 0.0, 0.0]))
+    )
     c2w[:3, 3] = cam[3:6]
     return c2w
 
 
 def read_flame_head_tracker(path, *, fps=None) -> Sequence:
     path = Path(path)
-    files = ([(frame_number(path), path)] if path.is_file()
-             else numbered_files(path, ".npz"))
+    files = [(frame_number(path), path)] if path.is_file() else numbered_files(path, ".npz")
     frames = [_read_frame(load_npz(file), file, number) for number, file in files]
     stacked = {key: np.stack([f[key] for f in frames]) for key in frames[0]}
     sizes = {(round(2 * k[1, 2]), round(2 * k[0, 2])) for k in stacked["K"]}
     if len(sizes) > 1:
         raise InputError(path, "K", f"frames differ in image size (2 cy, 2 cx): {sorted(sizes)}")
-    return Sequence(**stacked, translation=np.zeros((len(frames), 3)),
-                    image_size=sizes.pop(), frame_ids=[n for n, _ in files],
-                    fps=resolve_fps(fps, path), source=str(path), format=NAME).validate()
+    return Sequence(
+        **stacked,
+        translation=np.zeros((len(frames), 3)),
+        image_size=sizes.pop(),
+        frame_ids=[n for n, _ in files],
+        fps=resolve_fps(fps, path),
+        source=str(path),
+        format=NAME,
+    ).validate()
 
 
 def _read_frame(arrays: dict, path: Path, number: int) -> dict:
@@ -73,8 +80,12 @@ def _read_frame(arrays: dict, path: Path, number: int) -> dict:
         f = 0.5 * RENDER_SIZE / np.tan(np.radians(fov) / 2)
         K = intrinsics(f, f, RENDER_SIZE / 2, RENDER_SIZE / 2)
     return {
-        "shape": value("shape", "S"), "expr": value("exp", "E"),
-        "rotation": value("head_pose", 3), "jaw": value("jaw_pose", 3),
-        "neck": value("neck_pose", 3, default=np.zeros((1, 3))), "eyes": value("eye_pose", 6),
-        "K": K.reshape(3, 3), "w2c": w2c_from_opengl_c2w(camera_to_world(cam)),
+        "shape": value("shape", "S"),
+        "expr": value("exp", "E"),
+        "rotation": value("head_pose", 3),
+        "jaw": value("jaw_pose", 3),
+        "neck": value("neck_pose", 3, default=np.zeros((1, 3))),
+        "eyes": value("eye_pose", 6),
+        "K": K.reshape(3, 3),
+        "w2c": w2c_from_opengl_c2w(camera_to_world(cam)),
     }

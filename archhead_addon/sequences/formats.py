@@ -52,8 +52,9 @@ def detect_format(path) -> str:
         arrays = load_npz(path)
         found = _npz_format(arrays)
         if found is None:
-            raise InputError(path, None, f"an npz with keys {sorted(arrays)[:12]} matches no "
-                             f"format; {SUPPORTED}")
+            raise InputError(
+                path, None, f"an npz with keys {sorted(arrays)[:12]} matches no format; {SUPPORTED}"
+            )
     elif path.suffix.lower() in (".pkl", ".pickle", ".pt", ".pth"):
         found = driving.NAME
     else:
@@ -76,8 +77,9 @@ def _folder_format(folder: Path) -> str | None:
     return None
 
 
-def read_sequence(path, format: str | None = None, *, fps: float | None = None,
-                  camera: int | None = None) -> Sequence:
+def read_sequence(
+    path, format: str | None = None, *, fps: float | None = None, camera: int | None = None
+) -> Sequence:
     """Read any supported sequence; `format` overrides detection.
 
     `fps` sets the frame rate (for formats that store one, it overrides the stored value);

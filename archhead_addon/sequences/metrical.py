@@ -42,26 +42,39 @@ def frame_folder(path: Path) -> Path:
 
 def read_metrical(path, *, fps=None) -> Sequence:
     path = Path(path)
-    files = ([(frame_number(path), path)] if path.is_file()
-             else numbered_files(frame_folder(path), ".frame"))
+    files = (
+        [(frame_number(path), path)]
+        if path.is_file()
+        else numbered_files(frame_folder(path), ".frame")
+    )
     frames = [_read_frame(file, number) for number, file in files]
-    lacking = [file.name for (_, file), f in zip(files, frames, strict=True)
-               if f["eyelids"] is None]
+    lacking = [
+        file.name for (_, file), f in zip(files, frames, strict=True) if f["eyelids"] is None
+    ]
     if 0 < len(lacking) < len(frames):
-        raise InputError(path, "flame.eyelids", f"missing in {lacking[:8]} but present in "
-                         "other frames")
+        raise InputError(
+            path, "flame.eyelids", f"missing in {lacking[:8]} but present in other frames"
+        )
     sizes = {f["image_size"] for f in frames}
     if len(sizes) > 1:
         raise InputError(path, "img_size", f"frames differ in image size: {sorted(sizes)}")
     n = len(frames)
     zeros = np.zeros((n, 3))
-    stacked = {key: np.stack([f[key] for f in frames])
-               for key in ("shape", "expr", "jaw", "eyes", "K", "w2c")}
+    stacked = {
+        key: np.stack([f[key] for f in frames])
+        for key in ("shape", "expr", "jaw", "eyes", "K", "w2c")
+    }
     return Sequence(
-        **stacked, neck=zeros, rotation=zeros, translation=zeros,
+        **stacked,
+        neck=zeros,
+        rotation=zeros,
+        translation=zeros,
         eyelids=None if lacking else np.stack([f["eyelids"] for f in frames]),
-        image_size=sizes.pop(), frame_ids=[number for number, _ in files],
-        fps=resolve_fps(fps, path), source=str(path), format=NAME,
+        image_size=sizes.pop(),
+        frame_ids=[number for number, _ in files],
+        fps=resolve_fps(fps, path),
+        source=str(path),
+        format=NAME,
     ).validate()
 
 
@@ -79,8 +92,7 @@ def _read_frame(path: Path, number: int) -> dict:
     sections = {part: _section(payload, part, path) for part in ("flame", "opencv")}
 
     def value(part, key, *shapes, **kw):
-        return get(sections[part], key, path, *shapes, frame=number, name=f"{part}.{key}",
-                   **kw)
+        return get(sections[part], key, path, *shapes, frame=number, name=f"{part}.{key}", **kw)
 
     jaw = rotation_6d_to_matrix(value("flame", "jaw", (1, 6)).reshape(6))
     eyes = rotation_6d_to_matrix(value("flame", "eyes", (1, 12)).reshape(2, 6))
@@ -93,7 +105,8 @@ def _read_frame(path: Path, number: int) -> dict:
         "eyes": matrix_to_axis_angle(eyes).reshape(6),
         "eyelids": None if eyelids is None else eyelids.reshape(2),
         "K": value("opencv", "K", (1, 3, 3)).reshape(3, 3),
-        "w2c": w2c_from_rt(value("opencv", "R", (1, 3, 3)).reshape(3, 3),
-                           value("opencv", "t", (1, 3)).reshape(3)),
+        "w2c": w2c_from_rt(
+            value("opencv", "R", (1, 3, 3)).reshape(3, 3), value("opencv", "t", (1, 3)).reshape(3)
+        ),
         "image_size": (int(size[0]), int(size[1])),
     }

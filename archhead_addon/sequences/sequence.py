@@ -27,9 +27,18 @@ DEFAULT_FPS = 25.0
 """Frame rate assumed (with a warning) for formats that do not store one."""
 
 # Per-frame float fields and their width after the frame axis.
-PER_FRAME = {"shape": None, "expr": None, "jaw": (3,), "neck": (3,), "eyes": (6,),
-             "rotation": (3,), "translation": (3,), "eyelids": (2,), "K": (3, 3),
-             "w2c": (4, 4)}
+PER_FRAME = {
+    "shape": None,
+    "expr": None,
+    "jaw": (3,),
+    "neck": (3,),
+    "eyes": (6,),
+    "rotation": (3,),
+    "translation": (3,),
+    "eyelids": (2,),
+    "K": (3, 3),
+    "w2c": (4, 4),
+}
 OPTIONAL = ("eyelids", "K", "w2c", "static_offset")
 
 
@@ -73,73 +82,94 @@ class Sequence:
     def validate(self) -> Sequence:
         """Check shapes and values; raise InputError naming the key (and frame) at fault."""
         if self.expr.ndim != 2:
-            raise InputError(self.source, "expr", f"expected shape (T, E), found "
-                             f"{self.expr.shape}")
+            raise InputError(self.source, "expr", f"expected shape (T, E), found {self.expr.shape}")
         n = len(self.expr)
         if n == 0:
             raise InputError(self.source, "expr", "the sequence has no frames")
         if self.frame_ids.shape != (n,):
-            raise InputError(self.source, "frame_ids", f"expected shape ({n},), found "
-                             f"{self.frame_ids.shape}")
+            raise InputError(
+                self.source, "frame_ids", f"expected shape ({n},), found {self.frame_ids.shape}"
+            )
         if n > 1 and not (np.diff(self.frame_ids) > 0).all():
             raise InputError(self.source, "frame_ids", "frame ids are not strictly increasing")
         if (self.K is None) != (self.w2c is None):
-            raise InputError(self.source, "K" if self.K is None else "w2c",
-                             "intrinsics and extrinsics must be given together")
+            raise InputError(
+                self.source,
+                "K" if self.K is None else "w2c",
+                "intrinsics and extrinsics must be given together",
+            )
         for name, width in PER_FRAME.items():
             value = getattr(self, name)
             if value is None:
                 continue
-            if value.ndim != 1 + (len(width) if width else 1) or len(value) != n or (
-                    width and value.shape[1:] != width):
+            if (
+                value.ndim != 1 + (len(width) if width else 1)
+                or len(value) != n
+                or (width and value.shape[1:] != width)
+            ):
                 want = f"({n}, {', '.join(map(str, width))})" if width else f"({n}, N)"
                 raise InputError(self.source, name, f"expected shape {want}, found {value.shape}")
             bad = ~np.isfinite(value.reshape(n, -1)).all(axis=1)
             if bad.any():
                 t = int(np.argmax(bad))
-                raise InputError(self.source, name, f"NaN or Inf at frame index {t} "
-                                 f"(frame id {self.frame_ids[t]})")
+                raise InputError(
+                    self.source,
+                    name,
+                    f"NaN or Inf at frame index {t} (frame id {self.frame_ids[t]})",
+                )
         self._validate_once_per_sequence()
         return self
 
     def _validate_once_per_sequence(self) -> None:
         if not np.isfinite(self.fps) or self.fps <= 0:
-            raise InputError(self.source, "fps", f"expected a positive frame rate, found "
-                             f"{self.fps}")
-        if self.image_size is not None and (
-                len(self.image_size) != 2 or min(self.image_size) <= 0):
-            raise InputError(self.source, "image_size", f"expected (H, W) > 0, found "
-                             f"{self.image_size}")
+            raise InputError(
+                self.source, "fps", f"expected a positive frame rate, found {self.fps}"
+            )
+        if self.image_size is not None and (len(self.image_size) != 2 or min(self.image_size) <= 0):
+            raise InputError(
+                self.source, "image_size", f"expected (H, W) > 0, found {self.image_size}"
+            )
         offset = self.static_offset
         if offset is not None:
             if offset.ndim != 2 or offset.shape[1] != 3:
-                raise InputError(self.source, "static_offset", f"expected shape (V, 3), found "
-                                 f"{offset.shape}")
+                raise InputError(
+                    self.source, "static_offset", f"expected shape (V, 3), found {offset.shape}"
+                )
             bad = ~np.isfinite(offset).all(axis=1)
             if bad.any():
-                raise InputError(self.source, "static_offset",
-                                 f"NaN or Inf at vertex index {int(np.argmax(bad))}")
+                raise InputError(
+                    self.source,
+                    "static_offset",
+                    f"NaN or Inf at vertex index {int(np.argmax(bad))}",
+                )
 
     def fit_to_model(self, model) -> Sequence:
         """A copy whose shape/expr widths (and static_offset rows) match `model`, with a
         warning that says what was padded with zeros or truncated."""
-        shape = _fit_width(self.shape, model.n_shape, self.source, "shape",
-                           "identity shape coefficients")
-        expr = _fit_width(self.expr, model.n_expr, self.source, "expr",
-                          "expression coefficients")
-        return replace(self, shape=shape, expr=expr,
-                       static_offset=self._fit_offset(model.n_verts))
+        shape = _fit_width(
+            self.shape, model.n_shape, self.source, "shape", "identity shape coefficients"
+        )
+        expr = _fit_width(self.expr, model.n_expr, self.source, "expr", "expression coefficients")
+        return replace(self, shape=shape, expr=expr, static_offset=self._fit_offset(model.n_verts))
 
     def _fit_offset(self, n_verts: int) -> np.ndarray | None:
         offset = self.static_offset
         if offset is None or len(offset) == n_verts:
             return offset
         if len(offset) < n_verts:  # the model appends vertices (teeth): they get no offset
-            warn_input(self.source, "static_offset", f"{len(offset)} vertex offsets, the model "
-                       f"has {n_verts} vertices: padded with {n_verts - len(offset)} zero rows")
+            warn_input(
+                self.source,
+                "static_offset",
+                f"{len(offset)} vertex offsets, the model "
+                f"has {n_verts} vertices: padded with {n_verts - len(offset)} zero rows",
+            )
             return np.concatenate([offset, np.zeros((n_verts - len(offset), 3))])
-        warn_input(self.source, "static_offset", f"{len(offset)} vertex offsets, more than the "
-                   f"model's {n_verts} vertices (another topology): offsets dropped")
+        warn_input(
+            self.source,
+            "static_offset",
+            f"{len(offset)} vertex offsets, more than the "
+            f"model's {n_verts} vertices (another topology): offsets dropped",
+        )
         return None
 
     def subset(self, start: int = 0, stop: int | None = None, stride: int = 1) -> Sequence:
@@ -148,10 +178,16 @@ class Sequence:
             raise ValueError(f"stride must be >= 1, got {stride}")
         frames = slice(start, stop, stride)
         if len(range(*frames.indices(len(self)))) == 0:
-            raise InputError(self.source, None, f"frames [{start}:{stop}:{stride}] of a "
-                             f"{len(self)}-frame sequence are empty")
-        changes = {name: getattr(self, name)[frames] for name in PER_FRAME
-                   if getattr(self, name) is not None}
+            raise InputError(
+                self.source,
+                None,
+                f"frames [{start}:{stop}:{stride}] of a {len(self)}-frame sequence are empty",
+            )
+        changes = {
+            name: getattr(self, name)[frames]
+            for name in PER_FRAME
+            if getattr(self, name) is not None
+        }
         return replace(self, frame_ids=self.frame_ids[frames], **changes)
 
     def data_equal(self, other: Sequence) -> bool:
@@ -175,9 +211,13 @@ def _fit_width(codes: np.ndarray, width: int, source, key: str, what: str) -> np
     if have == width:
         return codes
     if have < width:
-        warn_input(source, key, f"{have} {what}, the model has {width}: padded with "
-                   f"{width - have} zeros")
+        warn_input(
+            source, key, f"{have} {what}, the model has {width}: padded with {width - have} zeros"
+        )
         return np.concatenate([codes, np.zeros((len(codes), width - have))], axis=1)
-    warn_input(source, key, f"{have} {what}, the model has {width}: truncated, the last "
-               f"{have - width} dropped")
+    warn_input(
+        source,
+        key,
+        f"{have} {what}, the model has {width}: truncated, the last {have - width} dropped",
+    )
     return codes[:, :width].copy()

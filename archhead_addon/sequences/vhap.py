@@ -34,8 +34,13 @@ from .common import get, load_npz, numbered_files, resolve_fps
 from .sequence import Sequence
 
 NAME = "vhap"
-_POSES = (("rotation", "rotation", 3), ("neck_pose", "neck", 3), ("jaw_pose", "jaw", 3),
-          ("eyes_pose", "eyes", 6), ("translation", "translation", 3))
+_POSES = (
+    ("rotation", "rotation", 3),
+    ("neck_pose", "neck", 3),
+    ("jaw_pose", "jaw", 3),
+    ("eyes_pose", "eyes", 6),
+    ("translation", "translation", 3),
+)
 _INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 
 
@@ -48,8 +53,11 @@ def transforms_files(folder: Path) -> list[Path]:
     whole = folder / "transforms.json"
     if whole.is_file():
         return [whole]
-    return [p for split in ("train", "val", "test")
-            if (p := folder / f"transforms_{split}.json").is_file()]
+    return [
+        p
+        for split in ("train", "val", "test")
+        if (p := folder / f"transforms_{split}.json").is_file()
+    ]
 
 
 def read_vhap(path, *, fps=None, camera: int | None = None) -> Sequence:
@@ -75,17 +83,25 @@ def _rows(arrays: dict, path: Path, frame=None, single=False) -> dict:
         rows[name] = get(arrays, key, path, (n, width), frame=frame, along="frame")
     shape = get(arrays, "shape", path, ("S",), (1, "S"), frame=frame)
     rows["shape"] = np.repeat(shape.reshape(1, -1), n, axis=0)
-    offset = get(arrays, "static_offset", path, (1, "V", 3), ("V", 3), frame=frame,
-                 default=None)
+    offset = get(arrays, "static_offset", path, (1, "V", 3), ("V", 3), frame=frame, default=None)
     rows["static_offset"] = None if offset is None else offset.reshape(-1, 3)
     return rows
 
 
 def _sequence(rows: list[dict], frame_ids, source, fps, **camera) -> Sequence:
-    stacked = {name: np.concatenate([r[name] for r in rows])
-               for name in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")}
-    return Sequence(**stacked, static_offset=rows[0]["static_offset"], fps=fps,
-                    frame_ids=frame_ids, source=str(source), format=NAME, **camera).validate()
+    stacked = {
+        name: np.concatenate([r[name] for r in rows])
+        for name in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
+    }
+    return Sequence(
+        **stacked,
+        static_offset=rows[0]["static_offset"],
+        fps=fps,
+        frame_ids=frame_ids,
+        source=str(source),
+        format=NAME,
+        **camera,
+    ).validate()
 
 
 def _read_tracked_npz(path: Path, fps) -> Sequence:
@@ -99,9 +115,11 @@ def _read_tracked_npz(path: Path, fps) -> Sequence:
         f = focal * max(h, w)
         c2w = np.eye(4)
         c2w[2, 3] = 1.0
-        camera = {"K": np.repeat(intrinsics(f, f, w / 2, h / 2)[None], n, axis=0),
-                  "w2c": np.repeat(w2c_from_opengl_c2w(c2w)[None], n, axis=0),
-                  "image_size": (h, w)}
+        camera = {
+            "K": np.repeat(intrinsics(f, f, w / 2, h / 2)[None], n, axis=0),
+            "w2c": np.repeat(w2c_from_opengl_c2w(c2w)[None], n, axis=0),
+            "image_size": (h, w),
+        }
     return _sequence([rows], np.arange(n), path, resolve_fps(fps, path), **camera)
 
 
@@ -132,16 +150,21 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
     if chosen not in cameras:
         raise InputError(frames[0][0], "camera_index", f"camera {chosen} not among {cameras}")
     if camera is None and len(cameras) > 1:
-        warn_input(frames[0][0], "camera_index", f"{len(cameras)} cameras {cameras}; using "
-                   f"camera {chosen} (pass camera= or --camera to choose)")
+        warn_input(
+            frames[0][0],
+            "camera_index",
+            f"{len(cameras)} cameras {cameras}; using "
+            f"camera {chosen} (pass camera= or --camera to choose)",
+        )
     selected: dict[int, tuple] = {}
     for entry in frames:
         if entry[2].get("camera_index", 0) == chosen:
             selected.setdefault(entry[2]["timestep_index"], entry)
     missing = sorted({f["timestep_index"] for _, _, f, _ in frames} - set(selected))
     if missing:
-        raise InputError(frames[0][0], "frames", f"timesteps {missing[:8]} have no frame from "
-                         f"camera {chosen}")
+        raise InputError(
+            frames[0][0], "frames", f"timesteps {missing[:8]} have no frame from camera {chosen}"
+        )
     timesteps = sorted(selected)
     rows, Ks, w2cs, sizes = [], [], [], set()
     for t in timesteps:
@@ -158,10 +181,18 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
             values[key] = value
         sizes.add((int(values["h"]), int(values["w"])))
         Ks.append(intrinsics(values["fl_x"], values["fl_y"], values["cx"], values["cy"]))
-        c2w = get(frame, "transform_matrix", file, (4, 4), frame=t,
-                  name=f"frames[{i}].transform_matrix")
+        c2w = get(
+            frame, "transform_matrix", file, (4, 4), frame=t, name=f"frames[{i}].transform_matrix"
+        )
         w2cs.append(w2c_from_opengl_c2w(c2w))
     if len(sizes) > 1:
         raise InputError(frames[0][0], "w/h", f"frames differ in image size: {sorted(sizes)}")
-    return _sequence(rows, timesteps, folder, resolve_fps(fps, folder), K=np.stack(Ks),
-                     w2c=np.stack(w2cs), image_size=sizes.pop())
+    return _sequence(
+        rows,
+        timesteps,
+        folder,
+        resolve_fps(fps, folder),
+        K=np.stack(Ks),
+        w2c=np.stack(w2cs),
+        image_size=sizes.pop(),
+    )

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from ..timing import time_calls
 from . import kernel, scenes
 
 SIZES = (3_000, 18_000, 46_000)
@@ -24,18 +25,14 @@ RESOLUTIONS = (256, 512)
 
 
 def best_of(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * min(times)
+    return time_calls(fn, repeats).min_ms
 
 
 def time_kernel(scene: scenes.Scene, threads: int, repeats: int):
     g = kernel.Gaussians.checked(*scene.gaussians())
-    settings = kernel.RasterSettings(scene.viewmat, scene.K, scene.width, scene.height,
-                                     num_threads=threads)
+    settings = kernel.RasterSettings(
+        scene.viewmat, scene.K, scene.width, scene.height, num_threads=threads
+    )
     g_rgb = np.full((scene.height, scene.width, 3), 0.1, np.float32)
     ctx = kernel.forward(g, settings)[1]  # warm-up
     fwd = best_of(lambda: kernel.forward(g, settings), repeats)
@@ -79,8 +76,10 @@ def run(sizes=SIZES, resolutions=RESOLUTIONS, repeats: int = 15, torch_tiles: bo
 
 
 def table(rows) -> str:
-    head = ("| Gaussians | image | tile hits | fwd 1T | bwd 1T | fwd 2T | bwd 2T "
-            "| torch tiles fwd | torch tiles bwd | speed-up fwd / bwd (2T) |")
+    head = (
+        "| Gaussians | image | tile hits | fwd 1T | bwd 1T | fwd 2T | bwd 2T "
+        "| torch tiles fwd | torch tiles bwd | speed-up fwd / bwd (2T) |"
+    )
     lines = [head, "|" + "---|" * 10]
     for n, res, hits, f1, b1, f2, b2, tf, tb in rows:
         lines.append(

@@ -55,3 +55,25 @@ def render_from_blender_camera(
         background=tuple(background), num_threads=num_threads,
     )  # fmt: skip
     return kernel.render(means, quats, log_scales, opacity_logits, colors, settings)
+
+
+def render_frame_from_blender_camera(
+    frame,
+    camera: BlenderCamera,
+    camera_matrix_world,
+    object_matrix_world=FLAME_TO_BLENDER,
+    **options,
+) -> kernel.Raster:
+    """`render_from_blender_camera` of a Gaussian container (avatar.decode_cache.SplatFrame
+    or anything with its field names): the one place its fields meet the kernel's order."""
+    return render_from_blender_camera(
+        means=frame.means,
+        quats=frame.quats,
+        log_scales=frame.log_scales,
+        opacity_logits=frame.opacity_logits,
+        colors=frame.sh,
+        camera=camera,
+        camera_matrix_world=camera_matrix_world,
+        object_matrix_world=object_matrix_world,
+        **options,
+    )

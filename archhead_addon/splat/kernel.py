@@ -67,14 +67,50 @@ def library() -> ctypes.CDLL:
         raise KernelNotBuiltError("The splat kernel's ABI version does not match: rebuild it.")
     P, i64, i32, cp = ctypes.POINTER(_Params), ctypes.c_int64, ctypes.c_int32, ctypes.c_char_p
     f64, ip = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int32)
-    lib.ah_splat_project.argtypes = [P, i64, _F32, _F32, _F32, _F32, f64, _F32, _F32, _F32, ip,
-                                     cp, i32]
+    lib.ah_splat_project.argtypes = [
+        P,
+        i64,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        f64,
+        _F32,
+        _F32,
+        _F32,
+        ip,
+        cp,
+        i32,
+    ]
     lib.ah_splat_project.restype = ctypes.c_int
-    lib.ah_splat_forward.argtypes = [P, i64, _F32, _F32, _F32, _F32, _F32, _F32, _F32, _F32,
-                                     cp, i32]
+    lib.ah_splat_forward.argtypes = [
+        P,
+        i64,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        cp,
+        i32,
+    ]
     lib.ah_splat_forward.restype = ctypes.c_void_p
-    lib.ah_splat_backward.argtypes = [ctypes.c_void_p, _F32, _F32, _F32, _F32, _F32, _F32,
-                                      _F32, _F32, cp, i32]
+    lib.ah_splat_backward.argtypes = [
+        ctypes.c_void_p,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        _F32,
+        cp,
+        i32,
+    ]
     lib.ah_splat_backward.restype = ctypes.c_int
     lib.ah_splat_stats.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int64)]
     lib.ah_splat_stats.restype = None
@@ -279,9 +315,7 @@ def expected_depth(depth_acc: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     return depth_acc / np.maximum(alpha, 1e-10)
 
 
-def render(
-    means, quats, log_scales, opacity_logits, colors, settings: RasterSettings
-) -> Raster:
+def render(means, quats, log_scales, opacity_logits, colors, settings: RasterSettings) -> Raster:
     """Render with numpy arrays; depth is the expected depth (see module docstring)."""
     raster, ctx = forward(
         Gaussians.checked(means, quats, log_scales, opacity_logits, colors), settings

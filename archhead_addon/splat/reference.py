@@ -139,8 +139,19 @@ def render_tiles_torch(means, quats, log_scales, opacity_logits, colors, viewmat
                        height, *, near_plane=0.01, far_plane=1e10, eps2d=0.3,
                        background=(0.0, 0.0, 0.0)) -> Image:  # fmt: skip
     """Pure-torch tile renderer (dense per-tile alpha matrices; autograd for gradients)."""
-    P = project_reference(means, quats, log_scales, opacity_logits, viewmat, K, width, height,
-                          near_plane=near_plane, far_plane=far_plane, eps2d=eps2d)
+    P = project_reference(
+        means,
+        quats,
+        log_scales,
+        opacity_logits,
+        viewmat,
+        K,
+        width,
+        height,
+        near_plane=near_plane,
+        far_plane=far_plane,
+        eps2d=eps2d,
+    )
     dtype = means.dtype
     order = torch.argsort(P.depths.detach(), stable=True)
     P = Projection(*(t[order] for t in P))
@@ -156,7 +167,7 @@ def render_tiles_torch(means, quats, log_scales, opacity_logits, colors, viewmat
     for ty in range(tiles_y):
         row = []
         for tx in range(tiles_x):
-            idx = ((lo[:, 0] <= tx) & (hi[:, 0] >= tx) & (lo[:, 1] <= ty) & (hi[:, 1] >= ty))
+            idx = (lo[:, 0] <= tx) & (hi[:, 0] >= tx) & (lo[:, 1] <= ty) & (hi[:, 1] >= ty)
             idx = idx.nonzero().flatten()
             ys, xs = torch.meshgrid(torch.arange(TILE, dtype=dtype) + ty * TILE + 0.5,
                                     torch.arange(TILE, dtype=dtype) + tx * TILE + 0.5,

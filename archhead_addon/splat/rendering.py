@@ -99,8 +99,9 @@ def rasterization(
         raise ValueError(f"rasterize_mode must be 'classic' or 'antialiased': {rasterize_mode!r}")
     device = means.device
     # float64 on the host for the CPU kernel (it projects in double); float32 on the device
-    viewmat64, K64 = (np.asarray(torch.as_tensor(x).detach().cpu(), np.float64)
-                      for x in (viewmat, K))
+    viewmat64, K64 = (
+        np.asarray(torch.as_tensor(x).detach().cpu(), np.float64) for x in (viewmat, K)
+    )
     viewmat = torch.as_tensor(viewmat64, dtype=torch.float32, device=device)
     K = torch.as_tensor(K64, dtype=torch.float32, device=device)
     bg = torch.zeros(3) if background is None else torch.as_tensor(background).float().cpu()

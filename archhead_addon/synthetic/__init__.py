@@ -1,6 +1,6 @@
 """The synthetic subject: the built-in head rendered along a known FLAME trajectory.
 
-`operators/synthetic_subject.py` renders it with Blender Cycles; this package holds what
+`scripts/synthetic_subject.py` renders it with Blender Cycles; this package holds what
 needs no Blender: the trajectory and camera (`trajectory`) and the output folder
 (`subject`). The folder it writes (docs/formats.md, "Synthetic subject"):
 

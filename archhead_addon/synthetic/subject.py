@@ -54,8 +54,10 @@ class SubjectFolder:
 
     def summary(self, n_frames: int, size: int, samples: int, seconds: float) -> str:
         per_frame = seconds / max(n_frames, 1)
-        return (f"synthetic subject: {n_frames} frames of {size}x{size} px, {samples} samples, "
-                f"{seconds:.1f} s ({per_frame:.2f} s per frame)\n"
-                f"  frames   {self.frames}/{frame_name(0)} ...\n"
-                f"  masks    {self.masks}/{frame_name(0)} ...\n"
-                f"  tracking {self.tracking}")
+        return (
+            f"synthetic subject: {n_frames} frames of {size}x{size} px, {samples} samples, "
+            f"{seconds:.1f} s ({per_frame:.2f} s per frame)\n"
+            f"  frames   {self.frames}/{frame_name(0)} ...\n"
+            f"  masks    {self.masks}/{frame_name(0)} ...\n"
+            f"  tracking {self.tracking}"
+        )

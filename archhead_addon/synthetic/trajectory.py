@@ -25,8 +25,15 @@ import numpy as np
 from ..flame.builtin.blendshapes import EXPRESSION_NAMES
 from ..sequences.sequence import Sequence
 
-EXPRESSION_PEAKS = {"smile": 1.0, "brow_raise": 1.0, "pucker": 0.8, "frown": 0.8,
-                    "cheek_puff": 0.7, "lip_press": 0.8, "sneer": 0.8}
+EXPRESSION_PEAKS = {
+    "smile": 1.0,
+    "brow_raise": 1.0,
+    "pucker": 0.8,
+    "frown": 0.8,
+    "cheek_puff": 0.7,
+    "lip_press": 0.8,
+    "sneer": 0.8,
+}
 NECK_LIMITS = np.radians([12.0, 26.0, 8.0])  # pitch (x), yaw (y), roll (z)
 SWAY_LIMITS = np.radians([4.0, 4.0, 4.0])
 TRANSLATION_LIMITS = np.array([0.008, 0.008, 0.005])  # metres
@@ -36,12 +43,27 @@ EYE_LIMITS = np.array([0.2, 0.35])  # pitch, yaw in radians
 CAMERA_DISTANCE = 0.9  # metres from the FLAME origin to the camera
 CAMERA_TARGET_Y = -0.004  # metres; the height the camera looks at (the nose)
 FOCAL_PER_PIXEL = 2.8  # focal length in units of the image width (a 20 degree view)
-_STREAMS = ("neck", "sway", "translation", "talk", "syllables", "wide", "named", "blinks",
-            "wander", "eyes")
+_STREAMS = (
+    "neck",
+    "sway",
+    "translation",
+    "talk",
+    "syllables",
+    "wide",
+    "named",
+    "blinks",
+    "wander",
+    "eyes",
+)
 
 
-def eased_keys(rng: np.random.Generator, times: np.ndarray, hold: tuple[float, float],
-               move: tuple[float, float], draw) -> np.ndarray:
+def eased_keys(
+    rng: np.random.Generator,
+    times: np.ndarray,
+    hold: tuple[float, float],
+    move: tuple[float, float],
+    draw,
+) -> np.ndarray:
     """Values at `times` (s) of keys drawn by `draw()`, each held `hold` s, then eased into the
     next over `move` s (both uniform in the given ranges). Shape (T, *draw().shape)."""
     knot_t, knot_v = [0.0], [np.asarray(draw(), dtype=np.float64)]
@@ -75,15 +97,25 @@ def _blinks(rng: np.random.Generator, times: np.ndarray) -> np.ndarray:
 def _jaw(rngs: dict, times: np.ndarray) -> np.ndarray:
     """Jaw opening in [0, JAW_MAX]: talking under an on/off envelope, and wide openings."""
     talk_rng = rngs["talk"]
-    envelope = eased_keys(talk_rng, times, (0.2, 1.2), (0.2, 0.5),
-                          lambda: talk_rng.uniform(0.4, 1.0) * (talk_rng.random() < 0.65))
+    envelope = eased_keys(
+        talk_rng,
+        times,
+        (0.2, 1.2),
+        (0.2, 0.5),
+        lambda: talk_rng.uniform(0.4, 1.0) * (talk_rng.random() < 0.65),
+    )
     rate = rngs["syllables"].uniform(2.5, 4.0)
     phase = rngs["syllables"].uniform(0, 2 * np.pi)
     syllables = (1 - np.cos(2 * np.pi * rate * times + phase)) / 2
     talk = 0.85 * envelope * syllables
     wide_rng = rngs["wide"]
-    wide = eased_keys(wide_rng, times, (0.5, 2.5), (0.3, 0.7),
-                      lambda: wide_rng.uniform(0.6, 1.0) * (wide_rng.random() < 0.2))
+    wide = eased_keys(
+        wide_rng,
+        times,
+        (0.5, 2.5),
+        (0.3, 0.7),
+        lambda: wide_rng.uniform(0.6, 1.0) * (wide_rng.random() < 0.2),
+    )
     return JAW_MAX * np.clip(np.maximum(talk, wide), 0.0, 1.0)
 
 
@@ -92,9 +124,13 @@ def _expressions(rngs: dict, times: np.ndarray, jaw_open: np.ndarray, n_expr: in
     expr[:, EXPRESSION_NAMES.index("jaw_open")] = JAW_OPEN_PER_RADIAN * jaw_open
     rng = rngs["named"]
     peaks = np.array(list(EXPRESSION_PEAKS.values()))
-    named = eased_keys(rng, times, (0.2, 1.5), (0.3, 0.9),
-                       lambda: peaks * rng.uniform(0.3, 1.0, len(peaks))
-                       * (rng.random(len(peaks)) < 0.3))
+    named = eased_keys(
+        rng,
+        times,
+        (0.2, 1.5),
+        (0.3, 0.9),
+        lambda: peaks * rng.uniform(0.3, 1.0, len(peaks)) * (rng.random(len(peaks)) < 0.3),
+    )
     for k, name in enumerate(EXPRESSION_PEAKS):
         expr[:, EXPRESSION_NAMES.index(name)] = named[:, k]
     blink = _blinks(rngs["blinks"], times)
@@ -104,13 +140,20 @@ def _expressions(rngs: dict, times: np.ndarray, jaw_open: np.ndarray, n_expr: in
     if n_expr > n_named:
         sizes = np.exp(-np.arange(n_expr - n_named) / 25.0)
         rng = rngs["wander"]
-        expr[:, n_named:] = eased_keys(rng, times, (0.0, 0.4), (0.5, 1.2),
-                                       lambda: rng.normal(0.0, sizes))
+        expr[:, n_named:] = eased_keys(
+            rng, times, (0.0, 0.4), (0.5, 1.2), lambda: rng.normal(0.0, sizes)
+        )
     return expr
 
 
-def synthetic_sequence(frames: int = 300, size: int = 256, seed: int = 0, fps: float = 25.0,
-                       n_shape: int = 300, n_expr: int = 100) -> Sequence:
+def synthetic_sequence(
+    frames: int = 300,
+    size: int = 256,
+    seed: int = 0,
+    fps: float = 25.0,
+    n_shape: int = 300,
+    n_expr: int = 100,
+) -> Sequence:
     """The trajectory (module docstring) with a fixed camera for square `size` images.
 
     The identity is the built-in head's own (shape codes zero)."""
@@ -135,12 +178,21 @@ def synthetic_sequence(frames: int = 300, size: int = 256, seed: int = 0, fps: f
     zeros = np.zeros(frames)
     K, w2c = fixed_camera(size)
     return Sequence(
-        shape=np.zeros((frames, n_shape)), expr=_expressions(rngs, times, jaw_open, n_expr),
-        jaw=np.stack([jaw_open, zeros, zeros], axis=1), neck=neck, eyes=eyes,
-        rotation=rotation, translation=translation, fps=fps, frame_ids=np.arange(frames),
-        source=f"synthetic subject (seed {seed})", format="synthetic",
-        K=np.tile(K, (frames, 1, 1)), w2c=np.tile(w2c, (frames, 1, 1)),
-        image_size=(size, size)).validate()
+        shape=np.zeros((frames, n_shape)),
+        expr=_expressions(rngs, times, jaw_open, n_expr),
+        jaw=np.stack([jaw_open, zeros, zeros], axis=1),
+        neck=neck,
+        eyes=eyes,
+        rotation=rotation,
+        translation=translation,
+        fps=fps,
+        frame_ids=np.arange(frames),
+        source=f"synthetic subject (seed {seed})",
+        format="synthetic",
+        K=np.tile(K, (frames, 1, 1)),
+        w2c=np.tile(w2c, (frames, 1, 1)),
+        image_size=(size, size),
+    ).validate()
 
 
 def fixed_camera(size: int) -> tuple[np.ndarray, np.ndarray]:

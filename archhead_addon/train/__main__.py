@@ -22,8 +22,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..io.errors import InputError, InputWarning
-from .config import PRESETS, TrainConfig
-from .progress import Progress
+from .config import DEFAULT_PRESET, PRESETS, TrainConfig
+from .progress import DONE, ERROR, START, Progress
+from .progress import INTERRUPTED as INTERRUPTED_EVENT
+from .run_folder import RunFolder
 
 if TYPE_CHECKING:
     from .loop import Trainer
@@ -32,17 +34,27 @@ INTERRUPTED = 130  # the shell's status for a run stopped by SIGINT
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m archhead_addon.train",
-                                description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m archhead_addon.train", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("--data", type=Path, required=True, help="training data folder")
     p.add_argument("--out", type=Path, required=True, help="output folder of the run")
-    p.add_argument("--config", default="cpu", help=f"config file, or a preset: "
-                   f"{', '.join(PRESETS)} (default: cpu); ignored with --resume, which "
-                   "uses the run's own")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from "
-                   "its last checkpoint")
-    p.add_argument("--progress-json", action="store_true", help="one JSON object per line on "
-                   "stdout (events: start, step, checkpoint, done, interrupted, error)")
+    p.add_argument(
+        "--config",
+        default=DEFAULT_PRESET,
+        help=f"config file, or a preset: "
+        f"{', '.join(PRESETS)} (default: {DEFAULT_PRESET}); ignored with --resume, "
+        "which uses the run's own",
+    )
+    p.add_argument(
+        "--resume", action="store_true", help="continue the run in --out from its last checkpoint"
+    )
+    p.add_argument(
+        "--progress-json",
+        action="store_true",
+        help="one JSON object per line on "
+        "stdout (events: start, step, checkpoint, done, interrupted, error)",
+    )
     p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
     return p.parse_args(argv)
 
@@ -58,6 +70,7 @@ class StopFlag:
 
     def install(self) -> dict:
         """Install the handlers; returns the previous ones (for `restore`)."""
+
         def handler(signum, frame):
             if self.set and signum == signal.SIGINT:
                 raise KeyboardInterrupt
@@ -79,12 +92,15 @@ def setup(args, progress: Progress) -> Trainer:
     from . import loop
     from .dataset import FrameDataset
 
-    state_path = args.out / loop.STATE_FILE
+    state_path = RunFolder(args.out).state
     if args.resume and not state_path.is_file():
-        raise InputError(args.out, None, f"nothing to resume: no {loop.STATE_FILE} here")
+        raise InputError(args.out, None, f"nothing to resume: no {state_path.name} here")
     if not args.resume and state_path.exists():
-        raise InputError(args.out, None, "holds a training run: pass --resume to continue "
-                         "it, or choose another --out")
+        raise InputError(
+            args.out,
+            None,
+            "holds a training run: pass --resume to continue it, or choose another --out",
+        )
     state = loop.load_state(state_path) if args.resume else None
     config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
     if config.threads:
@@ -94,28 +110,41 @@ def setup(args, progress: Progress) -> Trainer:
     dataset = FrameDataset(args.data, config.resolution, model, split="train")
     frames = loop.frames_on_device(dataset, device)
     if state is not None:
-        trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background,
-                                      device)
+        trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background, device)
     else:
-        trainer = loop.Trainer.create(config, frames, model, dataset.sequence.shape[0],
-                                      args.out, dataset.background, device)
-    progress.event("start", step=trainer.step, total=config.total_steps, device=str(device),
-                   renderer=trainer.backend, frames=len(frames), resolution=list(dataset.size))
-    progress.message(f"training on {len(frames)} frames of {dataset.size[1]}x"
-                     f"{dataset.size[0]} px, {device}, renderer {trainer.backend}"
-                     + (f", resumed at step {trainer.step}" if state is not None else ""))
+        trainer = loop.Trainer.create(
+            config, frames, model, dataset.sequence.shape[0], args.out, dataset.background, device
+        )
+    progress.event(
+        START,
+        step=trainer.step,
+        total=config.total_steps,
+        device=str(device),
+        renderer=trainer.backend,
+        frames=len(frames),
+        resolution=list(dataset.size),
+    )
+    progress.message(
+        f"training on {len(frames)} frames of {dataset.size[1]}x"
+        f"{dataset.size[0]} px, {device}, renderer {trainer.backend}"
+        + (f", resumed at step {trainer.step}" if state is not None else "")
+    )
     return trainer
 
 
 def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
-    from .loop import AVATAR_FILE
 
     finished = trainer.run(progress.step, progress.checkpoint, stop)
-    kind = "done" if finished else "interrupted"
-    avatar = trainer.out_dir / AVATAR_FILE
+    kind = DONE if finished else INTERRUPTED_EVENT
+    avatar = RunFolder(trainer.out_dir).avatar
     total = trainer.config.total_steps
-    progress.event(kind, step=trainer.step, total=total, avatar=str(avatar),
-                   elapsed_seconds=round(trainer.elapsed, 1))
+    progress.event(
+        kind,
+        step=trainer.step,
+        total=total,
+        avatar=str(avatar),
+        elapsed_seconds=round(trainer.elapsed, 1),
+    )
     progress.message(f"{kind} at step {trainer.step}/{total}; avatar {avatar}")
     return 0 if finished else INTERRUPTED
 
@@ -133,7 +162,7 @@ def main(argv=None) -> int:
             try:
                 trainer = setup(args, progress)
             except (InputError, ValueError) as exc:
-                progress.event("error", message=str(exc))
+                progress.event(ERROR, message=str(exc))
                 progress.message(f"error: {exc}")
                 return 2
             return train(trainer, progress, stop)

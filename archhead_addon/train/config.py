@@ -19,6 +19,9 @@ from ..avatar.config import AvatarConfig
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 PRESETS = ("cpu", "cpu_short", "gpu_paper", "demo")
+# Where every training starts unless told otherwise: the command line and Blender's Train
+# operator alike (the dataclass defaults below are not a preset of their own).
+DEFAULT_PRESET = "cpu"
 
 
 @dataclass(frozen=True)
@@ -102,11 +105,25 @@ class TrainConfig:
     @classmethod
     def load(cls, path) -> TrainConfig:
         """A config file, or a preset name (PRESETS). ValueError names the file."""
-        path = CONFIG_DIR / f"{path}.json" if str(path) in PRESETS else Path(path)
+        path = config_path(path)
         try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
+            return cls.from_dict(json.loads(path.read_text()))
         except (OSError, ValueError) as exc:
             raise ValueError(f"{path}: {exc}") from exc
+
+
+def config_path(path_or_preset) -> Path:
+    """A preset's file (PRESETS), else the path itself."""
+    name = str(path_or_preset)
+    return CONFIG_DIR / f"{name}.json" if name in PRESETS else Path(name)
+
+
+def config_data(path_or_preset=DEFAULT_PRESET) -> dict:
+    """A config file's (or preset's) JSON object as written, checked by TrainConfig: the
+    starting point that callers override key by key."""
+    data = json.loads(config_path(path_or_preset).read_text())
+    TrainConfig.from_dict(data)
+    return data
 
 
 def _nested(kind, data, name: str):

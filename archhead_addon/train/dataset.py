@@ -80,13 +80,15 @@ def numbered_images(folder: Path) -> list[tuple[int, Path]]:
     """The folder's numbered images, one suffix only (see `numbered_files` for the rules)."""
     if not folder.is_dir():
         raise InputError(folder, None, "folder not found")
-    suffixes = sorted({p.suffix for p in folder.iterdir()
-                       if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES})
+    suffixes = sorted(
+        {p.suffix for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES}
+    )
     if not suffixes:
         raise InputError(folder, None, "no PNG, JPG or EXR images in this folder")
     if len(suffixes) > 1:
-        raise InputError(folder, None, f"mixed image types ({', '.join(suffixes)}); "
-                         "use one per folder")
+        raise InputError(
+            folder, None, f"mixed image types ({', '.join(suffixes)}); use one per folder"
+        )
     return numbered_files(folder, suffixes[0])
 
 
@@ -97,10 +99,12 @@ def _companions(folder: Path, frames: list[tuple[int, Path]], what: str) -> list
     by_number = dict(numbered_images(folder))
     missing = [path.name for n, path in frames if n not in by_number]
     if missing:
-        shown = ", ".join(missing[:8]) + (f" (and {len(missing) - 8} more)"
-                                          if len(missing) > 8 else "")
-        raise InputError(folder, None, f"no {what} for frames {shown}: every frame needs one "
-                         "(same number)")
+        shown = ", ".join(missing[:8]) + (
+            f" (and {len(missing) - 8} more)" if len(missing) > 8 else ""
+        )
+        raise InputError(
+            folder, None, f"no {what} for frames {shown}: every frame needs one (same number)"
+        )
     return [by_number[n] for n, _ in frames]
 
 
@@ -110,17 +114,34 @@ def _match_tracking(frames: list[tuple[int, Path]], seq: Sequence, folder: Path)
     if len(numbers) < len(ids):
         expected = ids - ids[0] + numbers[0]
         missing = np.setdiff1d(expected, numbers)
-        detail = (f"; missing frame numbers {', '.join(map(str, missing[:12]))}"
-                  + (" ..." if len(missing) > 12 else "")) if len(missing) else ""
-        raise InputError(folder, None, f"{len(numbers)} frames for {len(ids)} tracked frames "
-                         f"({seq.source}){detail}")
+        detail = (
+            (
+                f"; missing frame numbers {', '.join(map(str, missing[:12]))}"
+                + (" ..." if len(missing) > 12 else "")
+            )
+            if len(missing)
+            else ""
+        )
+        raise InputError(
+            folder,
+            None,
+            f"{len(numbers)} frames for {len(ids)} tracked frames ({seq.source}){detail}",
+        )
     if len(numbers) > len(ids):
-        raise InputError(folder, None, f"{len(numbers)} frames but the tracking "
-                         f"({seq.source}) has only {len(ids)}: frames "
-                         f"{frames[len(ids)][1].name} and after have no tracking")
+        raise InputError(
+            folder,
+            None,
+            f"{len(numbers)} frames but the tracking "
+            f"({seq.source}) has only {len(ids)}: frames "
+            f"{frames[len(ids)][1].name} and after have no tracking",
+        )
     if not np.array_equal(np.diff(numbers), np.diff(ids)):
-        warn_input(folder, None, "frame numbers do not step like the tracking's frame ids; "
-                   "frames are matched to tracked frames by order")
+        warn_input(
+            folder,
+            None,
+            "frame numbers do not step like the tracking's frame ids; "
+            "frames are matched to tracked frames by order",
+        )
 
 
 def _one_size(paths: list[Path], want: tuple[int, int] | None = None) -> tuple[int, int]:
@@ -130,8 +151,12 @@ def _one_size(paths: list[Path], want: tuple[int, int] | None = None) -> tuple[i
         size = image_size(path)
         if reference is not None and size != reference:
             other = "the frames are" if want is not None else f"{paths[0].name} is"
-            raise InputError(path, None, f"{size[1]}x{size[0]} pixels, but {other} "
-                             f"{reference[1]}x{reference[0]}: sizes must match")
+            raise InputError(
+                path,
+                None,
+                f"{size[1]}x{size[0]} pixels, but {other} "
+                f"{reference[1]}x{reference[0]}: sizes must match",
+            )
         reference = reference or size
     return reference
 
@@ -139,8 +164,17 @@ def _one_size(paths: list[Path], want: tuple[int, int] | None = None) -> tuple[i
 class FrameDataset:
     """Frames of one split (module docstring); `len()` and `[i]` give per-frame dicts."""
 
-    def __init__(self, data_dir, resolution, model: FlameModel, *, split: str = "train",
-                 tracking=None, background=(1.0, 1.0, 1.0), cache: bool = True):
+    def __init__(
+        self,
+        data_dir,
+        resolution,
+        model: FlameModel,
+        *,
+        split: str = "train",
+        tracking=None,
+        background=(1.0, 1.0, 1.0),
+        cache: bool = True,
+    ):
         if split not in SPLITS:
             raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
         self.root = Path(data_dir)
@@ -148,8 +182,10 @@ class FrameDataset:
             raise InputError(self.root, None, "data folder not found")
         self.model = model
         self.background = np.asarray(background, dtype=np.float32)
-        if self.background.shape != (3,) or not ((self.background >= 0)
-                                                 & (self.background <= 1)).all():
+        if (
+            self.background.shape != (3,)
+            or not ((self.background >= 0) & (self.background <= 1)).all()
+        ):
             raise ValueError(f"background must be an RGB triple in [0, 1], got {background!r}")
         self.sequence = self._read_tracking(tracking).fit_to_model(model)
         frames = numbered_images(self.root / FRAMES_DIR)
@@ -158,8 +194,12 @@ class FrameDataset:
         self.mask_paths = _companions(self.root / MASKS_DIR, frames, "mask")
         self.parts_paths = _companions(self.root / PARTS_DIR, frames, "parts mask")
         if self.parts_paths is None and model.vertex_parts is None:
-            warn_input(model.source, "vertex_parts", f"no eye/mouth labels in the model and no "
-                       f"{PARTS_DIR}/ masks in {self.root}: the parts mask B is empty")
+            warn_input(
+                model.source,
+                "vertex_parts",
+                f"no eye/mouth labels in the model and no "
+                f"{PARTS_DIR}/ masks in {self.root}: the parts mask B is empty",
+            )
         source = _one_size(self.frame_paths)
         for companions in (self.mask_paths, self.parts_paths):
             if companions is not None:
@@ -168,32 +208,48 @@ class FrameDataset:
         self.size = target_size(resolution, source)
         self.K = self._scaled_intrinsics(source)
         n_train = split_point(len(frames))
-        self.indices = {"train": range(n_train), "test": range(n_train, len(frames)),
-                        "all": range(len(frames))}[split]
+        self.indices = {
+            "train": range(n_train),
+            "test": range(n_train, len(frames)),
+            "all": range(len(frames)),
+        }[split]
         if len(self.indices) == 0:
-            raise InputError(self.root, None, f"the '{split}' split of {len(frames)} frame(s) "
-                             "is empty: a train/test split needs at least two frames")
+            raise InputError(
+                self.root,
+                None,
+                f"the '{split}' split of {len(frames)} frame(s) "
+                "is empty: a train/test split needs at least two frames",
+            )
         self.split = split
         self._cache: dict[int, dict] | None = {} if cache else None
 
     def _read_tracking(self, tracking) -> Sequence:
         path = Path(tracking) if tracking is not None else self.root / TRACKING_FILE
         if tracking is None and not path.exists():
-            raise InputError(self.root, None, f"no {TRACKING_FILE} in this folder: pass the "
-                             "tracked sequence (any supported format) as tracking=PATH")
+            raise InputError(
+                self.root,
+                None,
+                f"no {TRACKING_FILE} in this folder: pass the "
+                "tracked sequence (any supported format) as tracking=PATH",
+            )
         seq = read_sequence(path)
         if not seq.has_camera:
-            raise InputError(path, "K", "the tracking has no camera (K and w2c); training "
-                             "needs one per frame")
+            raise InputError(
+                path, "K", "the tracking has no camera (K and w2c); training needs one per frame"
+            )
         return seq
 
     def _scaled_intrinsics(self, source: tuple[int, int]) -> np.ndarray:
         tracked = self.sequence.image_size or source
         h, w = source
         if abs(tracked[0] * w / tracked[1] - h) > 1.0:
-            raise InputError(self.root / FRAMES_DIR, None, f"frames are {w}x{h} pixels but the "
-                             f"tracking's camera is for {tracked[1]}x{tracked[0]}: the aspect "
-                             "ratios differ")
+            raise InputError(
+                self.root / FRAMES_DIR,
+                None,
+                f"frames are {w}x{h} pixels but the "
+                f"tracking's camera is for {tracked[1]}x{tracked[0]}: the aspect "
+                "ratios differ",
+            )
         scale = np.diag([self.size[1] / tracked[1], self.size[0] / tracked[0], 1.0])
         return scale @ self.sequence.K
 
@@ -232,9 +288,13 @@ class FrameDataset:
         else:
             vertices = forward(self.model, static_offset=seq.static_offset, **codes)[0]
             parts = parts_mask(self.model, vertices, self.K[t], seq.w2c[t], self.size)
-        return {"image": np.clip(resize(rgb.astype(np.float32), self.size), 0, 1),
-                "mask": np.clip(resize(mask.astype(np.float32), self.size), 0, 1),
-                "parts": parts.astype(np.float32),
-                "K": self.K[t].astype(np.float32), "w2c": seq.w2c[t].astype(np.float32),
-                "codes": {k: v.astype(np.float32) for k, v in codes.items()},
-                "frame_id": int(seq.frame_ids[t]), "index": t}
+        return {
+            "image": np.clip(resize(rgb.astype(np.float32), self.size), 0, 1),
+            "mask": np.clip(resize(mask.astype(np.float32), self.size), 0, 1),
+            "parts": parts.astype(np.float32),
+            "K": self.K[t].astype(np.float32),
+            "w2c": seq.w2c[t].astype(np.float32),
+            "codes": {k: v.astype(np.float32) for k, v in codes.items()},
+            "frame_id": int(seq.frame_ids[t]),
+            "index": t,
+        }

@@ -57,8 +57,9 @@ def _exr_channels(path: Path) -> dict[str, np.ndarray]:
         raise _unreadable(path, exc) from exc
     short = {name.rsplit(".", 1)[-1]: name for name in channels}
     if len(short) != len(channels):
-        raise InputError(path, None, f"several layers ({', '.join(sorted(channels))}); "
-                         "write one layer per image")
+        raise InputError(
+            path, None, f"several layers ({', '.join(sorted(channels))}); write one layer per image"
+        )
     return {s: channels[name] for s, name in short.items()}
 
 
@@ -127,7 +128,7 @@ def _resampling_matrix(n_in: int, n_out: int) -> np.ndarray:
     if n_out <= n_in:
         edges = np.arange(n_out + 1) * (n_in / n_out)
         k = np.arange(n_in)
-        overlap = (np.minimum(edges[1:, None], k + 1) - np.maximum(edges[:-1, None], k))
+        overlap = np.minimum(edges[1:, None], k + 1) - np.maximum(edges[:-1, None], k)
         return np.clip(overlap, 0, None) / (n_in / n_out)
     x = np.clip((np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5, 0, n_in - 1)
     k0 = np.minimum(np.floor(x).astype(np.int64), max(n_in - 2, 0))

@@ -50,8 +50,8 @@ from .config import TrainConfig
 from .losses import TrainingLoss
 from .perceptual import ShiftTolerantLPIPS
 from .progress import StepReport
+from .run_folder import RunFolder
 
-AVATAR_FILE, STATE_FILE, CONFIG_FILE = "avatar.npz", "train_state.pt", "config.json"
 STATE_FORMAT, STATE_VERSION = "archhead-train-state", 1
 EMA = 0.9  # smoothing of the seconds-per-step estimate
 
@@ -73,11 +73,18 @@ def frames_on_device(dataset, device: torch.device) -> list[Frame]:
     frames = []
     for i in range(len(dataset)):
         item = dataset[i]
-        codes = {k: torch.as_tensor(v, device=device) for k, v in item["codes"].items()
-                 if k != "shape"}
-        frames.append(Frame(torch.as_tensor(item["image"], device=device),
-                            torch.as_tensor(item["parts"], device=device), codes,
-                            item["K"].astype(np.float64), item["w2c"].astype(np.float64)))
+        codes = {
+            k: torch.as_tensor(v, device=device) for k, v in item["codes"].items() if k != "shape"
+        }
+        frames.append(
+            Frame(
+                torch.as_tensor(item["image"], device=device),
+                torch.as_tensor(item["parts"], device=device),
+                codes,
+                item["K"].astype(np.float64),
+                item["w2c"].astype(np.float64),
+            )
+        )
     return frames
 
 
@@ -106,8 +113,15 @@ def stage2_cost_ratio(s_max: int, s_min: int, n: int) -> float:
 
 
 class Trainer:
-    def __init__(self, config: TrainConfig, frames: list[Frame], avatar: ArchHeadAvatar,
-                 out_dir, background, device: torch.device):
+    def __init__(
+        self,
+        config: TrainConfig,
+        frames: list[Frame],
+        avatar: ArchHeadAvatar,
+        out_dir,
+        background,
+        device: torch.device,
+    ):
         if not frames:
             raise ValueError("no training frames")
         self.config, self.frames, self.avatar = config, frames, avatar
@@ -115,19 +129,23 @@ class Trainer:
         self.background = torch.as_tensor(background, dtype=torch.float32)
         perceptual = ShiftTolerantLPIPS().to(device) if config.loss.lpips > 0 else None
         self.loss = TrainingLoss(config.loss, perceptual)
-        groups = {"features": list(avatar.features.parameters()),
-                  "mapping": list(avatar.mapping.parameters()),
-                  "decoder": list(avatar.decoder.parameters())}
+        groups = {
+            "features": list(avatar.features.parameters()),
+            "mapping": list(avatar.mapping.parameters()),
+            "decoder": list(avatar.decoder.parameters()),
+        }
         self.optimizer = torch.optim.Adam(
-            [{"params": p, "name": k, "lr": getattr(config.lr, k)} for k, p in groups.items()])
+            [{"params": p, "name": k, "lr": getattr(config.lr, k)} for k, p in groups.items()]
+        )
         self.step = 0  # steps done
         self.elapsed = 0.0  # training seconds over every session of the run
         self.backend = select_backend("auto", device)
         self._rate = {1: None, 2: None}  # smoothed seconds per step, by stage
 
     @classmethod
-    def create(cls, config: TrainConfig, frames, model, identity_shape, out_dir, background,
-               device) -> Trainer:
+    def create(
+        cls, config: TrainConfig, frames, model, identity_shape, out_dir, background, device
+    ) -> Trainer:
         torch.manual_seed(config.seed)
         avatar = ArchHeadAvatar.create(model, identity_shape, config.avatar_config(model.n_expr))
         return cls(config, frames, avatar.to(device), out_dir, background, device)
@@ -138,18 +156,25 @@ class Trainer:
         not the FLAME model the run was started with."""
         trained_on = state.get("model_id")
         if trained_on is not None and trained_on != model.model_id:
-            raise ValueError(f"{Path(out_dir) / STATE_FILE}: model_id: the run was started on "
-                             f"the FLAME model '{trained_on}', resumed with '{model.model_id}' "
-                             "(pass the same --flame as the run's first session)")
-        avatar = ArchHeadAvatar(avatar_mesh(model), state["model"]["identity_shape"].numpy(),
-                                AvatarConfig.from_json(state["avatar_config"]), model.model_id)
+            raise ValueError(
+                f"{RunFolder(out_dir).state}: model_id: the run was started on "
+                f"the FLAME model '{trained_on}', resumed with '{model.model_id}' "
+                "(pass the same --flame as the run's first session)"
+            )
+        avatar = ArchHeadAvatar(
+            avatar_mesh(model),
+            state["model"]["identity_shape"].numpy(),
+            AvatarConfig.from_json(state["avatar_config"]),
+            model.model_id,
+        )
         try:
             avatar.load_state_dict(state["model"], strict=True)
         except RuntimeError as exc:  # a state of another model size (no model_id: version 1)
-            raise ValueError(f"{Path(out_dir) / STATE_FILE}: model: the saved weights do not "
-                             f"fit the FLAME model '{model.model_id}' ({exc})") from exc
-        trainer = cls(state_config(state), frames, avatar.to(device), out_dir, background,
-                      device)
+            raise ValueError(
+                f"{RunFolder(out_dir).state}: model: the saved weights do not "
+                f"fit the FLAME model '{model.model_id}' ({exc})"
+            ) from exc
+        trainer = cls(state_config(state), frames, avatar.to(device), out_dir, background, device)
         trainer.optimizer.load_state_dict(state["optimizer"])
         trainer.step, trainer.elapsed = int(state["step"]), float(state["elapsed"])
         return trainer
@@ -170,8 +195,9 @@ class Trainer:
     def learning_rate_factor(self, step: int) -> float:
         """1 at the start of each stage, decaying exponentially to lr_final_ratio at its end."""
         cfg = self.config
-        start, length = ((0, cfg.stage1_steps) if cfg.stage(step) == 1
-                         else (cfg.stage1_steps, cfg.stage2_steps))
+        start, length = (
+            (0, cfg.stage1_steps) if cfg.stage(step) == 1 else (cfg.stage1_steps, cfg.stage2_steps)
+        )
         return cfg.lr_final_ratio ** ((step - start) / length)
 
     # -- one step -------------------------------------------------------------------------
@@ -180,9 +206,19 @@ class Trainer:
         """(rgb (H,W,3), Gaussians) of a frame at level `lod`."""
         g = self.avatar(lod, **frame.codes)
         h, w = frame.image.shape[:2]
-        out = rasterization(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, frame.w2c,
-                            frame.K, w, h, background=self.background,
-                            num_threads=self.config.threads)
+        out = rasterization(
+            g.means,
+            g.quats,
+            g.log_scales,
+            g.opacity_logits,
+            g.sh,
+            frame.w2c,
+            frame.K,
+            w,
+            h,
+            background=self.background,
+            num_threads=self.config.threads,
+        )
         return out.rgb, g
 
     def train_step(self) -> StepReport:
@@ -210,8 +246,16 @@ class Trainer:
         self.elapsed += seconds
         rate = self._rate[stage]
         self._rate[stage] = seconds if rate is None else EMA * rate + (1 - EMA) * seconds
-        return StepReport(stage, self.step, cfg.total_steps, sums, lods, self._rate[stage],
-                          self.eta(), self.elapsed)
+        return StepReport(
+            stage,
+            self.step,
+            cfg.total_steps,
+            sums,
+            lods,
+            self._rate[stage],
+            self.eta(),
+            self.elapsed,
+        )
 
     def eta(self) -> float:
         cfg = self.config
@@ -227,23 +271,31 @@ class Trainer:
 
     def save(self) -> Path:
         """Write the training state, then the avatar checkpoint; returns the avatar's path."""
-        state = {"format": STATE_FORMAT, "version": STATE_VERSION, "step": self.step,
-                 "elapsed": self.elapsed, "config": self.config.to_json(),
-                 "model_id": self.avatar.base_model_id,
-                 "avatar_config": self.avatar.config.to_json(),
-                 "model": {k: v.detach().cpu() for k, v in self.avatar.state_dict().items()},
-                 "optimizer": _to_cpu(self.optimizer.state_dict())}
-        with atomic_path(self.out_dir / STATE_FILE) as tmp:
+        state = {
+            "format": STATE_FORMAT,
+            "version": STATE_VERSION,
+            "step": self.step,
+            "elapsed": self.elapsed,
+            "config": self.config.to_json(),
+            "model_id": self.avatar.base_model_id,
+            "avatar_config": self.avatar.config.to_json(),
+            "model": {k: v.detach().cpu() for k, v in self.avatar.state_dict().items()},
+            "optimizer": _to_cpu(self.optimizer.state_dict()),
+        }
+        with atomic_path(RunFolder(self.out_dir).state) as tmp:
             torch.save(state, tmp)
-        save_avatar(self.out_dir / AVATAR_FILE, self.avatar)
-        return self.out_dir / AVATAR_FILE
+        save_avatar(RunFolder(self.out_dir).avatar, self.avatar)
+        return RunFolder(self.out_dir).avatar
 
     def write_config(self) -> None:
-        write_bytes_atomic(self.out_dir / CONFIG_FILE, self.config.to_json().encode() + b"\n")
+        write_bytes_atomic(RunFolder(self.out_dir).config, self.config.to_json().encode() + b"\n")
 
-    def run(self, on_step: Callable[[StepReport], None],
-            on_checkpoint: Callable[[int, Path], None],
-            should_stop: Callable[[], bool] = lambda: False) -> bool:
+    def run(
+        self,
+        on_step: Callable[[StepReport], None],
+        on_checkpoint: Callable[[int, Path], None],
+        should_stop: Callable[[], bool] = lambda: False,
+    ) -> bool:
         """Train to the end (True) or until should_stop() after a step (False, saved)."""
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.write_config()
@@ -267,8 +319,11 @@ def load_state(path) -> dict:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
         raise ValueError(f"{path}: unreadable training state ({exc})") from exc
-    if not isinstance(state, dict) or state.get("format") != STATE_FORMAT \
-            or state.get("version") != STATE_VERSION:
+    if (
+        not isinstance(state, dict)
+        or state.get("format") != STATE_FORMAT
+        or state.get("version") != STATE_VERSION
+    ):
         raise ValueError(f"{path}: not an ArchHead training state of version {STATE_VERSION}")
     return state
 

@@ -55,20 +55,32 @@ class TrainingLoss:
     def __init__(self, weights: LossWeights, perceptual=None):
         self.weights, self.perceptual = weights, perceptual
 
-    def __call__(self, pred: torch.Tensor, target: torch.Tensor, parts: torch.Tensor,
-                 gaussians: Gaussians, lod: float, lpips_weight: float | None = None
-                 ) -> tuple[torch.Tensor, dict[str, float]]:
+    def __call__(
+        self,
+        pred: torch.Tensor,
+        target: torch.Tensor,
+        parts: torch.Tensor,
+        gaussians: Gaussians,
+        lod: float,
+        lpips_weight: float | None = None,
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         """(total, terms): pred and target (H,W,3) in [0, 1], parts (H,W). The terms are the
         unweighted values of each part, and the total, as floats for logging.
         `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out)."""
         w = self.weights
         lpips_weight = w.lpips if lpips_weight is None else lpips_weight
-        terms = {"rgb": huber(pred, target, w.huber_delta),
-                 "parts": parts_huber(pred, target, parts, w.huber_delta),
-                 "offset": offset_norm(gaussians.offsets),
-                 "scale": scale_norm(gaussians.log_scales)}
-        total = (terms["rgb"] + w.parts * terms["parts"] + w.offset * terms["offset"]
-                 + scale_weight(w, lod) * terms["scale"])
+        terms = {
+            "rgb": huber(pred, target, w.huber_delta),
+            "parts": parts_huber(pred, target, parts, w.huber_delta),
+            "offset": offset_norm(gaussians.offsets),
+            "scale": scale_norm(gaussians.log_scales),
+        }
+        total = (
+            terms["rgb"]
+            + w.parts * terms["parts"]
+            + w.offset * terms["offset"]
+            + scale_weight(w, lod) * terms["scale"]
+        )
         if self.perceptual is not None and lpips_weight > 0:
             terms["lpips"] = self.perceptual(_nchw(pred), _nchw(target))[0]
             total = total + lpips_weight * terms["lpips"]

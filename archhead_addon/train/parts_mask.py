@@ -19,8 +19,9 @@ NEAR = 1e-4  # metres; faces with a vertex closer to the camera plane are skippe
 _MAX_PAIRS = 1 << 22  # (face, pixel) candidates per batch, bounds the memory (~200 MB)
 
 
-def rasterize(points: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-              size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def rasterize(
+    points: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.ndarray, size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
     """The nearest face at each pixel centre: its index (H,W) int64, -1 where no face is, and
     the perspective-correct barycentrics of the centre in it (H,W,3) float64 (0 where none).
 
@@ -43,10 +44,19 @@ def rasterize(points: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.ndar
     bounds = np.concatenate([[0], np.cumsum(counts)])
     start = 0
     while start < len(keep):
-        stop = max(int(np.searchsorted(bounds, bounds[start] + _MAX_PAIRS, "right")) - 1,
-                   start + 1)
-        _rasterize_batch(slice(start, stop), keep, faces, tri, z, lo, extent, counts, width,
-                         (depth, face_at, bary))
+        stop = max(int(np.searchsorted(bounds, bounds[start] + _MAX_PAIRS, "right")) - 1, start + 1)
+        _rasterize_batch(
+            slice(start, stop),
+            keep,
+            faces,
+            tri,
+            z,
+            lo,
+            extent,
+            counts,
+            width,
+            (depth, face_at, bary),
+        )
         start = stop
     return face_at.reshape(height, width), bary.reshape(height, width, 3)
 
@@ -84,15 +94,21 @@ def _rasterize_batch(batch, keep, faces, tri, z, lo, extent, counts, width, buff
     bary[pixel] = w_over_z[best] / inv_z[best, None]
 
 
-def parts_mask(model: FlameModel, vertices: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-               size: tuple[int, int]) -> np.ndarray:
+def parts_mask(
+    model: FlameModel, vertices: np.ndarray, K: np.ndarray, w2c: np.ndarray, size: tuple[int, int]
+) -> np.ndarray:
     """B (H,W) float32: 1 where the visible surface is eye or mouth, else 0.
 
     `vertices` (V,3) posed (FLAME forward of `model`). A model without labels gives zeros."""
     if model.vertex_parts is None:
         return np.zeros(size, np.float32)
-    face_at, bary = rasterize(np.asarray(vertices, np.float64), model.faces,
-                              np.asarray(K, np.float64), np.asarray(w2c, np.float64), size)
+    face_at, bary = rasterize(
+        np.asarray(vertices, np.float64),
+        model.faces,
+        np.asarray(K, np.float64),
+        np.asarray(w2c, np.float64),
+        size,
+    )
     labelled = (model.vertex_parts != PART_OTHER)[model.faces[np.maximum(face_at, 0)]]
     inside = (bary * labelled).sum(axis=-1) > 0.5
     return (inside & (face_at >= 0)).astype(np.float32)

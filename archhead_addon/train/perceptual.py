@@ -37,8 +37,9 @@ class _BlurDown(nn.Module):
         self.register_buffer("filt", filt[None, None].repeat(channels, 1, 1, 1))
 
     def forward(self, x):
-        return F.conv2d(F.pad(x, (2, 2, 2, 2), mode="reflect"), self.filt, stride=2,
-                        groups=x.shape[1])
+        return F.conv2d(
+            F.pad(x, (2, 2, 2, 2), mode="reflect"), self.filt, stride=2, groups=x.shape[1]
+        )
 
 
 def _slice(layers: dict[int, nn.Module]) -> nn.Sequential:
@@ -59,15 +60,29 @@ class ShiftTolerantLPIPS(nn.Module):
         self.register_buffer("shift", torch.zeros(1, 3, 1, 1))
         self.register_buffer("scale", torch.ones(1, 3, 1, 1))
         relu, pool = nn.ReLU, nn.MaxPool2d
-        self.trunk = nn.ModuleList([
-            _slice({0: nn.Conv2d(3, 64, 11, padding=2), 1: _BlurDown(64), 2: relu()}),
-            _slice({3: pool(3, stride=1), 4: _BlurDown(64), 5: nn.Conv2d(64, 192, 5, padding=2),
-                    6: relu()}),
-            _slice({7: pool(3, stride=1), 8: _BlurDown(192),
-                    9: nn.Conv2d(192, 384, 3, padding=1), 10: relu()}),
-            _slice({11: nn.Conv2d(384, 256, 3, padding=1), 12: relu()}),
-            _slice({13: nn.Conv2d(256, 256, 3, padding=1), 14: relu()}),
-        ])
+        self.trunk = nn.ModuleList(
+            [
+                _slice({0: nn.Conv2d(3, 64, 11, padding=2), 1: _BlurDown(64), 2: relu()}),
+                _slice(
+                    {
+                        3: pool(3, stride=1),
+                        4: _BlurDown(64),
+                        5: nn.Conv2d(64, 192, 5, padding=2),
+                        6: relu(),
+                    }
+                ),
+                _slice(
+                    {
+                        7: pool(3, stride=1),
+                        8: _BlurDown(192),
+                        9: nn.Conv2d(192, 384, 3, padding=1),
+                        10: relu(),
+                    }
+                ),
+                _slice({11: nn.Conv2d(384, 256, 3, padding=1), 12: relu()}),
+                _slice({13: nn.Conv2d(256, 256, 3, padding=1), 14: relu()}),
+            ]
+        )
         self.lins = nn.ModuleList(nn.Conv2d(c, 1, 1, bias=False) for c in CHANNELS)
         self._load()
         self.requires_grad_(False)
@@ -91,8 +106,9 @@ class ShiftTolerantLPIPS(nn.Module):
 
     def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         if a.shape != b.shape or a.ndim != 4 or a.shape[1] != 3:
-            raise ValueError(f"expected two (N,3,H,W) images, got {tuple(a.shape)} and "
-                             f"{tuple(b.shape)}")
+            raise ValueError(
+                f"expected two (N,3,H,W) images, got {tuple(a.shape)} and {tuple(b.shape)}"
+            )
         if min(a.shape[2:]) < 32:
             raise ValueError(f"ST-LPIPS needs images of at least 32x32 px, got {tuple(a.shape)}")
         x = ((2 * a - 1) - self.shift) / self.scale

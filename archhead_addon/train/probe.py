@@ -33,12 +33,14 @@ TRAIN_STRIDE = 20  # every 20th training frame is measured (9 of 180)
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m archhead_addon.train.probe",
-                                description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m archhead_addon.train.probe", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("--run", type=Path, required=True, help="a training run's folder")
     p.add_argument("--data", type=Path, required=True, help="the run's data folder")
-    p.add_argument("--levels", type=_levels, default=[1.0], help="levels of every step "
-                   "(default: 1)")
+    p.add_argument(
+        "--levels", type=_levels, default=[1.0], help="levels of every step (default: 1)"
+    )
     p.add_argument("--steps", type=int, default=1200)
     p.add_argument("--every", type=int, default=400, help="measure every N steps")
     p.add_argument("--lr-scale", type=float, default=1.0)
@@ -79,11 +81,14 @@ def widen(avatar, hidden: int, colour_hidden: int):
 
     old = avatar.config
     if hidden < old.hidden or colour_hidden < old.colour_hidden:
-        raise ValueError(f"cannot narrow the heads ({old.hidden},{old.colour_hidden} -> "
-                         f"{hidden},{colour_hidden})")
+        raise ValueError(
+            f"cannot narrow the heads ({old.hidden},{old.colour_hidden} -> "
+            f"{hidden},{colour_hidden})"
+        )
     config = replace(old, hidden=hidden, colour_hidden=colour_hidden)
-    wide = ArchHeadAvatar(avatar.mesh, avatar.identity_shape.cpu().numpy(), config,
-                          avatar.base_model_id).to(avatar.identity_shape.device)
+    wide = ArchHeadAvatar(
+        avatar.mesh, avatar.identity_shape.cpu().numpy(), config, avatar.base_model_id
+    ).to(avatar.identity_shape.device)
     wide.features.load_state_dict(avatar.features.state_dict())
     wide.mapping.load_state_dict(avatar.mapping.state_dict())
     old_rows, new_rows = old.head_slices(), config.head_slices()
@@ -123,12 +128,13 @@ def make_trainer(args):
     from ..io.errors import InputError
     from . import loop
     from .dataset import FrameDataset
+    from .run_folder import RunFolder
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    state_path = args.run / loop.STATE_FILE
+    state_path = RunFolder(args.run).state
     if not state_path.is_file():
-        raise InputError(args.run, None, f"no {loop.STATE_FILE}: not a training run")
+        raise InputError(args.run, None, f"no {state_path.name}: not a training run")
     state = loop.load_state(state_path)
     config = loop.state_config(state)
     if args.no_regularisers:
@@ -182,10 +188,14 @@ def run(args, out=None) -> list[dict]:
     trainer, train_frames, test_frames = make_trainer(args)
     measured = sorted({0.0, 1.0, *args.levels})
     rows, start = [], time.perf_counter()
-    print(f"probe {args.run}: levels {args.levels}, {args.steps} steps, "
-          f"{len(trainer.frames)} training frame(s), lr x {args.lr_scale}"
-          + (", no regularisers" if args.no_regularisers else "")
-          + (f", heads widened to {args.widen}" if args.widen else ""), file=out, flush=True)
+    print(
+        f"probe {args.run}: levels {args.levels}, {args.steps} steps, "
+        f"{len(trainer.frames)} training frame(s), lr x {args.lr_scale}"
+        + (", no regularisers" if args.no_regularisers else "")
+        + (f", heads widened to {args.widen}" if args.widen else ""),
+        file=out,
+        flush=True,
+    )
     for done in range(args.steps + 1):
         if done % args.every == 0 or done == args.steps:
             row = {"step": done, "seconds": round(time.perf_counter() - start, 1)}

@@ -1,6 +1,8 @@
 """Progress of a training run: a bar for people (stderr) and JSON lines for programs (stdout).
 
-JSON events, one object per line, flushed at once (the Blender operator reads them):
+The event schema lives here for both sides: `Progress` writes it, `RunStatus` reads it (the
+Blender operator, through the backend's stdout). JSON events, one object per line, flushed at
+once:
   {"event": "start", "step": 0, "total": 1500, "device": "cpu", "renderer": "cpu", ...}
   {"event": "step", "stage": 1, "step": 12, "total": 1500, "loss": {"rgb": ..., "total": ...},
    "lods": [0.0], "seconds_per_step": 1.9, "eta_seconds": 2800.0, "elapsed_seconds": 23.1}
@@ -14,8 +16,16 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+START, STEP, CHECKPOINT, DONE, INTERRUPTED, ERROR = (
+    "start",
+    "step",
+    "checkpoint",
+    "done",
+    "interrupted",
+    "error",
+)
 BAR_WIDTH = 24
 LINES_WITHOUT_TTY = 100  # a non-terminal stderr (a log file) gets about this many lines a run
 
@@ -32,12 +42,17 @@ class StepReport:
     elapsed_seconds: float
 
     def to_json(self) -> dict:
-        return {"event": "step", "stage": self.stage, "step": self.step, "total": self.total,
-                "loss": {k: round(v, 6) for k, v in self.loss.items()},
-                "lods": [round(lod, 4) for lod in self.lods],
-                "seconds_per_step": round(self.seconds_per_step, 4),
-                "eta_seconds": round(self.eta_seconds, 1),
-                "elapsed_seconds": round(self.elapsed_seconds, 1)}
+        return {
+            "event": STEP,
+            "stage": self.stage,
+            "step": self.step,
+            "total": self.total,
+            "loss": {k: round(v, 6) for k, v in self.loss.items()},
+            "lods": [round(lod, 4) for lod in self.lods],
+            "seconds_per_step": round(self.seconds_per_step, 4),
+            "eta_seconds": round(self.eta_seconds, 1),
+            "elapsed_seconds": round(self.elapsed_seconds, 1),
+        }
 
 
 def format_seconds(seconds: float) -> str:
@@ -74,7 +89,7 @@ class Progress:
             self.err.flush()
 
     def checkpoint(self, step: int, avatar) -> None:
-        self.event("checkpoint", step=step, avatar=str(avatar))
+        self.event(CHECKPOINT, step=step, avatar=str(avatar))
 
     def message(self, text: str) -> None:
         """A line for people (stderr), after the bar's line if one is showing."""
@@ -85,6 +100,37 @@ class Progress:
     @staticmethod
     def bar(r: StepReport) -> str:
         filled = BAR_WIDTH * r.step // r.total
-        return (f"stage {r.stage} [{'#' * filled}{'.' * (BAR_WIDTH - filled)}] "
-                f"{r.step}/{r.total}  rgb {r.loss['rgb']:.5f}  {r.seconds_per_step:.2f} s/step"
-                f"  ETA {format_seconds(r.eta_seconds)}")
+        return (
+            f"stage {r.stage} [{'#' * filled}{'.' * (BAR_WIDTH - filled)}] "
+            f"{r.step}/{r.total}  rgb {r.loss['rgb']:.5f}  {r.seconds_per_step:.2f} s/step"
+            f"  ETA {format_seconds(r.eta_seconds)}"
+        )
+
+
+@dataclass
+class RunStatus:
+    """What a reader of the JSON lines knows about the run so far."""
+
+    step: int = 0
+    total: int = 0
+    stage: int = 0
+    loss: dict = field(default_factory=dict)
+    seconds_per_step: float | None = None
+    eta_seconds: float | None = None
+    error: str | None = None
+    avatar: str | None = None  # the latest checkpoint written
+
+    def apply(self, record: dict) -> None:
+        """Take in one event (unknown events and keys are ignored: newer backends)."""
+        event = record.get("event")
+        if event in (START, STEP):
+            self.step, self.total = int(record["step"]), int(record["total"])
+        if event == STEP:
+            self.stage = record.get("stage", self.stage)
+            self.seconds_per_step = record.get("seconds_per_step")
+            self.eta_seconds = record.get("eta_seconds")
+            self.loss = record.get("loss", {})
+        elif event == ERROR:
+            self.error = record.get("message")
+        if "avatar" in record:
+            self.avatar = record["avatar"]

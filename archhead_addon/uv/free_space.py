@@ -14,7 +14,7 @@ def coverage_grid(uv: np.ndarray, uv_faces: np.ndarray, size: int = 256, margin:
     # conservative: a cell counts as used when the triangle's bounding box touches it, which
     # over-covers long thin triangles slightly but never misses one
     for (u0, v0), (u1, v1) in zip(lo, hi, strict=True):
-        grid[v0:v1 + 1, u0:u1 + 1] = True
+        grid[v0 : v1 + 1, u0 : u1 + 1] = True
     if margin:
         used = np.argwhere(grid)
         for dv in range(-margin, margin + 1):

@@ -75,8 +75,12 @@ def read_obj_uvs(path, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     idx = np.asarray(corners, dtype=np.int64) - 1  # (F,3,2): vertex, uv; obj counts from 1
     obj_faces, ft = idx[..., 0], idx[..., 1]
     if obj_faces.shape != faces.shape or not np.array_equal(obj_faces, faces):
-        raise InputError(path, "f", f"its {len(obj_faces)} faces are not the model's "
-                         f"{len(faces)} faces in the same order (another topology?)")
+        raise InputError(
+            path,
+            "f",
+            f"its {len(obj_faces)} faces are not the model's "
+            f"{len(faces)} faces in the same order (another topology?)",
+        )
     if ft.min() < 0 or ft.max() >= len(uv):
         raise InputError(path, "f", f"UV indices outside 1..{len(uv)}")
     return uv, ft
@@ -95,8 +99,7 @@ def xatlas_uvs(verts: np.ndarray, faces: np.ndarray, cache=None) -> tuple[np.nda
             if uv_faces.shape == faces.shape:
                 return uv, uv_faces
         except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError) as exc:
-            warnings.warn(f"{path}: unreadable UV cache ({exc}); generating it again",
-                          stacklevel=2)
+            warnings.warn(f"{path}: unreadable UV cache ({exc}); generating it again", stacklevel=2)
     uv, uv_faces = _run_xatlas(verts, faces)
     save_npz_atomic(path, uv=uv, uv_faces=uv_faces)
     return uv, uv_faces
@@ -106,8 +109,9 @@ def _run_xatlas(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nd
     import xatlas
 
     atlas = xatlas.Atlas()
-    atlas.add_mesh(np.ascontiguousarray(verts, dtype=np.float32),
-                   np.ascontiguousarray(faces, dtype=np.uint32))
+    atlas.add_mesh(
+        np.ascontiguousarray(verts, dtype=np.float32), np.ascontiguousarray(faces, dtype=np.uint32)
+    )
     pack = xatlas.PackOptions()
     pack.resolution, pack.padding = XATLAS_RESOLUTION, XATLAS_PADDING
     atlas.generate(xatlas.ChartOptions(), pack)

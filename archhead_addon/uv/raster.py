@@ -102,6 +102,7 @@ def position_map(verts, vert_idx, bary):
 def face_texel_scale(verts, faces, uv, uv_faces) -> np.ndarray:
     """(F,) metres per UV unit of every face, sqrt(3D area / UV area): a texel of an S-map
     on face f spans about scale[f] / S metres. Degenerate faces get the layout's mean."""
+
     def area(p):
         d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
         cross = np.cross(d1, d2)

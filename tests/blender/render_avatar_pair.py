@@ -7,13 +7,12 @@ the same Gaussians from the same camera (the pictures and PSNR in docs/blender_a
 The avatar is an untrained one of the built-in model (its initialisation, seed 0), on the demo
 head at frame 12, view-dependent colour on, at LOD 0 and LOD 1. Each row: Blender's render,
 the exact splat render, and their absolute difference x4, all over the same grey. Both
-renders go through the batch path (operators/batch_render.py) that the command line uses.
+renders go through the batch path (archhead_blender/batch_render.py) that the command line uses.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import tempfile
 import time
@@ -23,14 +22,14 @@ import bpy
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(REPO), str(REPO / "operators"), str(REPO / "tests")]
+sys.path[:0] = [str(REPO / "tests")]  # a test helper, not a package
 from avatar_env import load_rgba  # noqa: E402
-from script_import import enable_addon  # noqa: E402
 
 from archhead_addon.io.atomic import write_bytes_atomic  # noqa: E402
 from archhead_addon.sequences import write_canonical  # noqa: E402
 from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
 from archhead_addon.synthetic.png import encode_png  # noqa: E402
+from archhead_blender import api  # noqa: E402
 
 FRAME = 12
 GREY = 0.12
@@ -58,14 +57,15 @@ def main(argv) -> None:
     from archhead_addon.avatar.model import ArchHeadAvatar
     from archhead_addon.flame import load_model
 
-    module = enable_addon()
-    batch = importlib.import_module(f"{module}.operators.batch_render")
+    api.enable_addon()
+    batch = api
     folder = Path(tempfile.mkdtemp(prefix="archhead_pair_"))
     torch.manual_seed(0)
     save_avatar(folder / "avatar.npz", ArchHeadAvatar.create(load_model()))
     bpy.ops.wm.read_homefile(use_empty=True)
-    write_canonical(demo_sequence(frames=FRAME + 1, image_size=(args.size, args.size)),
-                    folder / "demo.npz")
+    write_canonical(
+        demo_sequence(frames=FRAME + 1, image_size=(args.size, args.size)), folder / "demo.npz"
+    )
     bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
     bpy.context.view_layer.objects.active = bpy.data.objects["demo"]
     bpy.ops.archhead.load_avatar(filepath=str(folder / "avatar.npz"))
@@ -84,20 +84,25 @@ def main(argv) -> None:
     rows = []
     for lod in (0.0, 1.0):
         start = time.perf_counter()
-        (exact_path,) = batch.render_frames(bpy.context, [FRAME], folder / f"exact_{lod:g}",
-                                            lod=lod, exact=True)
+        (exact_path,) = batch.render_frames(
+            bpy.context, [FRAME], folder / f"exact_{lod:g}", lod=lod, exact=True
+        )
         exact = _over_grey(load_rgba(exact_path))
         print(f"LOD {lod:g}: exact splat {time.perf_counter() - start:.1f} s")
         for engine in engines:
             r.engine = engine
             start = time.perf_counter()
-            (path,) = batch.render_frames(bpy.context, [FRAME], folder / f"{engine}_{lod:g}",
-                                          lod=lod)
+            (path,) = batch.render_frames(
+                bpy.context, [FRAME], folder / f"{engine}_{lod:g}", lod=lod
+            )
             image = _over_grey(load_rgba(path))
-            print(f"LOD {lod:g}: {engine} {time.perf_counter() - start:.1f} s, "
-                  f"PSNR against the exact splat {psnr(image, exact):.2f} dB")
-            rows.append(np.concatenate([image, exact, np.clip(4 * np.abs(image - exact), 0, 1)],
-                                       axis=1))
+            print(
+                f"LOD {lod:g}: {engine} {time.perf_counter() - start:.1f} s, "
+                f"PSNR against the exact splat {psnr(image, exact):.2f} dB"
+            )
+            rows.append(
+                np.concatenate([image, exact, np.clip(4 * np.abs(image - exact), 0, 1)], axis=1)
+            )
     picture = np.concatenate(rows, axis=0)
     name = "avatar_cycles_vs_splat.png" if len(engines) == 1 else "avatar_engines_vs_splat.png"
     write_bytes_atomic(args.out / name, encode_png(np.round(picture * 255).astype(np.uint8)))
@@ -105,4 +110,4 @@ def main(argv) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
+    main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:])

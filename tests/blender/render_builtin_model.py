@@ -10,26 +10,22 @@ model's own UVs and albedo, and renders it under three lights. The test suite ca
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import bpy
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(REPO_ROOT), str(REPO_ROOT / "operators")]  # the core, the scene pieces
-from head_render import (  # noqa: E402
+from archhead_addon.flame.builtin import EXPRESSION_NAMES, builtin_model
+from archhead_addon.flame.lbs import forward
+from archhead_addon.flame.teeth import add_teeth
+from archhead_blender.head_render import (
     add_head,
     add_lights,
     flame_point,
     look_at,
     reset_scene,
 )
-
-from archhead_addon.flame.builtin import EXPRESSION_NAMES, builtin_model  # noqa: E402
-from archhead_addon.flame.lbs import forward  # noqa: E402
-from archhead_addon.flame.teeth import add_teeth  # noqa: E402
 
 POSES = {  # file name -> FLAME codes
     "builtin_neutral": {},
@@ -55,8 +51,7 @@ def add_camera(target_flame=(0.0, -0.004, 0.02)):
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     cam.data.lens = 100
     distance = 0.88
-    cam.location = flame_point([distance * np.sin(CAMERA_YAW), 0.0,
-                                distance * np.cos(CAMERA_YAW)])
+    cam.location = flame_point([distance * np.sin(CAMERA_YAW), 0.0, distance * np.cos(CAMERA_YAW)])
     look_at(cam, flame_point(target_flame))
     scene.collection.objects.link(cam)
     scene.camera = cam

@@ -41,8 +41,15 @@ GENERATOR_VERSION = 1
 MODEL_ID = "archhead-builtin-v1"
 KINTREE = np.array([[4294967295, 0, 1, 1, 1], [0, 1, 2, 3, 4]], dtype=np.int64)
 
-__all__ = ["EXPRESSION_NAMES", "GENERATOR_VERSION", "IDENTITY_NAMES", "MODEL_ID",
-           "builtin_model", "cache_path", "generate_arrays"]
+__all__ = [
+    "EXPRESSION_NAMES",
+    "GENERATOR_VERSION",
+    "IDENTITY_NAMES",
+    "MODEL_ID",
+    "builtin_model",
+    "cache_path",
+    "generate_arrays",
+]
 
 
 def _vertex_parts(head: HeadMesh) -> np.ndarray:
@@ -53,8 +60,7 @@ def _vertex_parts(head: HeadMesh) -> np.ndarray:
     for name in ("eyeball_left", "eyeball_right", "lid_margin_left", "lid_margin_right"):
         parts[head.groups[name]] = PART_EYE
     parts[vermilion(v) > 0.2] = PART_MOUTH
-    for name in ("lip_ring_upper", "lip_ring_lower", "mouth_cavity_rings",
-                 "mouth_cavity_centre"):
+    for name in ("lip_ring_upper", "lip_ring_lower", "mouth_cavity_rings", "mouth_cavity_centre"):
         parts[head.groups[name].ravel()] = PART_MOUTH
     return parts
 
@@ -66,20 +72,26 @@ def generate_arrays() -> dict[str, np.ndarray]:
     regressor = joint_regressor(head)
     joints = (regressor[:, :, None] * head.verts[None]).sum(1)
     weights = skinning_weights(head, joints)
-    shapedirs = np.concatenate([identity_basis(head),
-                                expression_basis(head, weights[:, 2], joints[2], blinks)], axis=2)
+    shapedirs = np.concatenate(
+        [identity_basis(head), expression_basis(head, weights[:, 2], joints[2], blinks)], axis=2
+    )
     f32 = np.float32
     return {
-        "v_template": head.verts.astype(f32), "f": head.faces.astype(np.int32),
+        "v_template": head.verts.astype(f32),
+        "f": head.faces.astype(np.int32),
         "shapedirs": shapedirs.astype(f32),
         "posedirs": pose_correctives(head, joints, weights).astype(f32),
-        "J_regressor": regressor.astype(f32), "weights": weights.astype(f32),
-        "kintree_table": KINTREE, "n_shape": np.int64(N_IDENTITY),
-        "model_id": np.str_(MODEL_ID), "vt": head.uv.astype(f32),
+        "J_regressor": regressor.astype(f32),
+        "weights": weights.astype(f32),
+        "kintree_table": KINTREE,
+        "n_shape": np.int64(N_IDENTITY),
+        "model_id": np.str_(MODEL_ID),
+        "vt": head.uv.astype(f32),
         "ft": head.uv_faces.astype(np.int32),
         "lip_ring_upper": head.groups["lip_ring_upper"].astype(np.int32),
         "lip_ring_lower": head.groups["lip_ring_lower"].astype(np.int32),
-        "vertex_parts": _vertex_parts(head), "albedo": paint_albedo(head),
+        "vertex_parts": _vertex_parts(head),
+        "albedo": paint_albedo(head),
         "generator_version": np.int64(GENERATOR_VERSION),
     }
 
@@ -109,8 +121,9 @@ def _load_or_generate(path: Path) -> dict:
     except FileNotFoundError:
         pass
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        warnings.warn(f"{path}: unreadable built-in model cache ({exc}); regenerating",
-                      stacklevel=3)
+        warnings.warn(
+            f"{path}: unreadable built-in model cache ({exc}); regenerating", stacklevel=3
+        )
     arrays = generate_arrays()
     try:
         save_npz_atomic(path, **arrays)

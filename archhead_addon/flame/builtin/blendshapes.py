@@ -18,11 +18,33 @@ from .mesh import HeadMesh, eye_centres
 from .sculpt import MOUTH_Y
 
 N_IDENTITY, N_EXPRESSION = 300, 100
-IDENTITY_NAMES = ("head_width", "face_length", "head_depth", "nose_size", "jaw_width",
-                  "cheekbones", "chin_projection", "brow_ridge", "eye_spacing", "lip_fullness",
-                  "nose_bridge", "ear_size", "neck_thickness")
-EXPRESSION_NAMES = ("jaw_open", "smile", "brow_raise", "blink_left", "blink_right", "pucker",
-                    "frown", "cheek_puff", "lip_press", "sneer")
+IDENTITY_NAMES = (
+    "head_width",
+    "face_length",
+    "head_depth",
+    "nose_size",
+    "jaw_width",
+    "cheekbones",
+    "chin_projection",
+    "brow_ridge",
+    "eye_spacing",
+    "lip_fullness",
+    "nose_bridge",
+    "ear_size",
+    "neck_thickness",
+)
+EXPRESSION_NAMES = (
+    "jaw_open",
+    "smile",
+    "brow_raise",
+    "blink_left",
+    "blink_right",
+    "pucker",
+    "frown",
+    "cheek_puff",
+    "lip_press",
+    "sneer",
+)
 IDENTITY_SEED, EXPRESSION_SEED = 1301, 1302
 NAMED_IDENTITY_MM = 3.5  # largest displacement of identity component 0 at one sigma
 RANDOM_IDENTITY_MM = 2.0  # RMS of identity component 0's random continuation at one sigma
@@ -94,10 +116,10 @@ def identity_basis(head: HeadMesh) -> np.ndarray:
     basis = np.empty((len(p), 3, N_IDENTITY))
     for i, f in enumerate(named):
         basis[:, :, i] = f * NAMED_IDENTITY_MM * 1e-3 / np.sqrt(1 + i)
-    rest = k[len(named):]
+    rest = k[len(named) :]
     wavelengths = 0.30 / (1 + rest / 40)
     fields = random_smooth_fields(p, len(rest), IDENTITY_SEED, wavelengths, symmetric=True)
-    basis[:, :, len(named):] = fields * (RANDOM_IDENTITY_MM * 1e-3 / (1 + rest))
+    basis[:, :, len(named) :] = fields * (RANDOM_IDENTITY_MM * 1e-3 / (1 + rest))
     return basis
 
 
@@ -118,8 +140,12 @@ def _named_expressions(head: HeadMesh, jaw_weight, jaw_joint, blinks) -> list[np
     corners = bump(m, [0.026, MOUTH_Y, 0.085], [0.020, 0.017, 0.022])
     cheeks = bump(m, [0.036, -0.028, 0.070], [0.026, 0.024, 0.03])
     under_eye = bump(m, [0.031, 0.004, 0.076], [0.016, 0.008, 0.02])
-    smile = (col(corners) * s * [0.005, 0.0, 0.0] + col(corners) * [0.0, 0.0065, -0.004]
-             + col(cheeks) * [0.0, 0.004, 0.0025] + col(under_eye) * [0.0, 0.0015, 0.0])
+    smile = (
+        col(corners) * s * [0.005, 0.0, 0.0]
+        + col(corners) * [0.0, 0.0065, -0.004]
+        + col(cheeks) * [0.0, 0.004, 0.0025]
+        + col(under_eye) * [0.0, 0.0015, 0.0]
+    )
 
     brows = bump(m, [0.030, 0.042, 0.080], [0.035, 0.025, 0.04])
     forehead = bump(p, [0.0, 0.07, 0.07], [0.06, 0.04, 0.05])
@@ -129,8 +155,11 @@ def _named_expressions(head: HeadMesh, jaw_weight, jaw_joint, blinks) -> list[np
     pucker = np.stack([-0.45 * x * lips, zero, 0.009 * lips], 1)
 
     inner_brows = bump(m, [0.022, 0.036, 0.085], [0.026, 0.02, 0.03])
-    frown = (col(inner_brows) * s * [-0.002, 0.0, 0.0] + col(inner_brows) * [0.0, -0.003, 0.0005]
-             + col(corners) * [0.0, -0.003, 0.0])
+    frown = (
+        col(inner_brows) * s * [-0.002, 0.0, 0.0]
+        + col(inner_brows) * [0.0, -0.003, 0.0005]
+        + col(corners) * [0.0, -0.003, 0.0]
+    )
 
     puff_centre = np.array([0.0, -0.045, 0.0])
     outward = p - puff_centre
@@ -139,10 +168,21 @@ def _named_expressions(head: HeadMesh, jaw_weight, jaw_joint, blinks) -> list[np
 
     lip_press = np.stack([zero, -0.35 * (y - MOUTH_Y) * lips, -0.0025 * lips], 1)
 
-    sneer = (col(bump(m, [0.012, -0.046, 0.095], [0.016, 0.012, 0.02])) * [0.0, 0.003, 0.0]
-             + col(bump(m, [0.0135, -0.028, 0.097], [0.012, 0.01, 0.012])) * [0.0, 0.002, 0.0])
-    return [jaw_open, smile, brow_raise, blinks[0], blinks[1], pucker, frown, cheek_puff,
-            lip_press, sneer]
+    sneer = col(bump(m, [0.012, -0.046, 0.095], [0.016, 0.012, 0.02])) * [0.0, 0.003, 0.0] + col(
+        bump(m, [0.0135, -0.028, 0.097], [0.012, 0.01, 0.012])
+    ) * [0.0, 0.002, 0.0]
+    return [
+        jaw_open,
+        smile,
+        brow_raise,
+        blinks[0],
+        blinks[1],
+        pucker,
+        frown,
+        cheek_puff,
+        lip_press,
+        sneer,
+    ]
 
 
 def expression_basis(head: HeadMesh, jaw_weight, jaw_joint, blinks) -> np.ndarray:
@@ -154,14 +194,19 @@ def expression_basis(head: HeadMesh, jaw_weight, jaw_joint, blinks) -> np.ndarra
     for i, f in enumerate(named):
         basis[:, :, i] = f
     rest = np.arange(len(named), N_EXPRESSION)
-    face = (smoothstep(p[:, 2], 0.02, 0.07) * smoothstep(p[:, 1], -0.12, -0.09)
-            * (1 - smoothstep(p[:, 1], 0.06, 0.09)))
+    face = (
+        smoothstep(p[:, 2], 0.02, 0.07)
+        * smoothstep(p[:, 1], -0.12, -0.09)
+        * (1 - smoothstep(p[:, 1], 0.06, 0.09))
+    )
     near_eyes = sum(bump(p, c + [0, 0, 0.01], [0.022, 0.016, 0.02]) for c in eye_centres())
     mask = face * (1 - 0.8 * np.clip(near_eyes, 0, 1))
-    fields = random_smooth_fields(p, len(rest), EXPRESSION_SEED, 0.12 / (1 + rest / 30),
-                                  symmetric=False) * mask[:, None, None]
+    fields = (
+        random_smooth_fields(p, len(rest), EXPRESSION_SEED, 0.12 / (1 + rest / 30), symmetric=False)
+        * mask[:, None, None]
+    )
     peak = np.abs(fields).max(axis=(0, 1))
-    basis[:, :, len(named):] = fields * (RANDOM_EXPRESSION_MM * 1e-3 / (1 + rest) / peak)
+    basis[:, :, len(named) :] = fields * (RANDOM_EXPRESSION_MM * 1e-3 / (1 + rest) / peak)
     for side_name in ("left", "right"):
         basis[head.groups[f"eyeball_{side_name}"]] = 0.0
     return basis

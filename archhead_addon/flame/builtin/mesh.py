@@ -50,8 +50,9 @@ LENSES = (  # (centre, half-sizes in radians, strength), applied in this order
     ("eye_right", (0.16, 0.11), 0.45),
     ("eye_left", (0.16, 0.11), 0.45),
 )
-EYEBALL_RINGS = np.array([0.13, 0.26, 0.38, 0.50, 0.64, 0.82, 1.02, 1.25, np.pi / 2, 1.98,
-                          2.42, 2.84])  # polar angles from the front; one exactly at 90 deg
+EYEBALL_RINGS = np.array(
+    [0.13, 0.26, 0.38, 0.50, 0.64, 0.82, 1.02, 1.25, np.pi / 2, 1.98, 2.42, 2.84]
+)  # polar angles from the front; one exactly at 90 deg
 EYEBALL_SEGMENTS = 20
 CORNEA_BULGE = 0.0007
 CAVITY_RINGS = ((0.002, 0.45), (0.006, 0.95), (0.018, 1.0), (0.034, 0.55))  # depth, height
@@ -82,9 +83,9 @@ def _inverse_cdf(density, lo, hi, t):
 
 def _azimuths() -> np.ndarray:
     """Column azimuths, 0 in front (+z), positive toward +x, mirror-symmetric, -pi at the back."""
+
     def density(a):
-        return (0.40 + 1.9 * np.exp(-(a / 0.62) ** 2)
-                + 0.45 * np.exp(-((a - 1.62) / 0.32) ** 2))
+        return 0.40 + 1.9 * np.exp(-((a / 0.62) ** 2)) + 0.45 * np.exp(-(((a - 1.62) / 0.32) ** 2))
 
     half = _inverse_cdf(density, 0.0, np.pi, np.arange(N_COLS // 2 + 1) / (N_COLS // 2))
     return np.concatenate([-half[::-1], half[1:-1]])  # columns 0 (back) .. N-1
@@ -107,9 +108,14 @@ def _eye_slit_point():
 
 def _row_elevations() -> tuple[np.ndarray, int, int]:
     """Row elevations (bottom to top) and the eye and mouth slit rows (1-based)."""
+
     def density(a):
-        return (0.28 + 1.6 * np.exp(-((a + 0.2) / 0.55) ** 4)
-                + 0.7 * np.exp(-((a + 1.05) / 0.25) ** 2) + 0.25 * smoothstep(a, 0.4, 0.8))
+        return (
+            0.28
+            + 1.6 * np.exp(-(((a + 0.2) / 0.55) ** 4))
+            + 0.7 * np.exp(-(((a + 1.05) / 0.25) ** 2))
+            + 0.25 * smoothstep(a, 0.4, 0.8)
+        )
 
     t = np.arange(1, N_ROWS + 1) / (N_ROWS + 1)
     rows = _inverse_cdf(density, -np.pi / 2, np.pi / 2, t)
@@ -166,10 +172,13 @@ class _Topology:
     def _lens_centres(self) -> dict:
         eye = _eye_slit_point()
         ear = (_azimuth(EAR_CENTRE), _elevation(EAR_CENTRE))
-        return {"ear_left": ear, "ear_right": (-ear[0], ear[1]),
-                "mouth": (0.0, self.phi[self.j_mouth - 1]),
-                "eye_left": (_azimuth(eye), self.phi[self.j_eye - 1]),
-                "eye_right": (-_azimuth(eye), self.phi[self.j_eye - 1])}
+        return {
+            "ear_left": ear,
+            "ear_right": (-ear[0], ear[1]),
+            "mouth": (0.0, self.phi[self.j_mouth - 1]),
+            "eye_left": (_azimuth(eye), self.phi[self.j_eye - 1]),
+            "eye_right": (-_azimuth(eye), self.phi[self.j_eye - 1]),
+        }
 
     def lensed(self, theta, phi):
         for name, half, strength in LENSES:
@@ -187,9 +196,11 @@ class _Topology:
         inner = _azimuth(eye - [EYE_HALF_WIDTH[0], 0, 0.003])
         outer = _azimuth(eye + [EYE_HALF_WIDTH[1], 0, -0.006])
         mouth = _azimuth([MOUTH_HALF_WIDTH, MOUTH_Y, MOUTH_Z - 0.009])
-        spans = {"eye_left": (self.j_eye, inner, outer),
-                 "eye_right": (self.j_eye, -outer, -inner),
-                 "mouth": (self.j_mouth, -mouth, mouth)}
+        spans = {
+            "eye_left": (self.j_eye, inner, outer),
+            "eye_right": (self.j_eye, -outer, -inner),
+            "mouth": (self.j_mouth, -mouth, mouth),
+        }
         out, next_index = {}, self.n_grid
         for name, (row, lo, hi) in spans.items():
             cols = self._slit_columns(row, lo, hi)
@@ -229,19 +240,40 @@ class _Topology:
         # mirror-symmetric diagonals: a-c on the subject's left half, b-d on the right
         left = (i >= N_COLS // 2)[:, None]
         quads = np.where(left, np.stack([a, b, c, a, c, d], 1), np.stack([a, b, d, b, c, d], 1))
-        uvq = np.where(left, np.stack([ta, tb, tc, ta, tc, td], 1),
-                       np.stack([ta, tb, td, tb, tc, td], 1))
+        uvq = np.where(
+            left, np.stack([ta, tb, tc, ta, tc, td], 1), np.stack([ta, tb, td, tb, tc, td], 1)
+        )
         cols = np.arange(N_COLS)
         n_uv_grid = N_ROWS * (N_COLS + 1)
-        fans = [np.stack([np.full(N_COLS, self.bottom), self.grid_index(cols + 1, 1),
-                          self.grid_index(cols, 1)], 1),
-                np.stack([self.grid_index(cols, N_ROWS), self.grid_index(cols + 1, N_ROWS),
-                          np.full(N_COLS, self.top)], 1)]
+        fans = [
+            np.stack(
+                [
+                    np.full(N_COLS, self.bottom),
+                    self.grid_index(cols + 1, 1),
+                    self.grid_index(cols, 1),
+                ],
+                1,
+            ),
+            np.stack(
+                [
+                    self.grid_index(cols, N_ROWS),
+                    self.grid_index(cols + 1, N_ROWS),
+                    np.full(N_COLS, self.top),
+                ],
+                1,
+            ),
+        ]
         t = self._grid_uv_index
-        fan_uv = [np.stack([n_uv_grid + cols, t(cols + 1, 1), t(cols, 1)], 1),
-                  np.stack([t(cols, N_ROWS), t(cols + 1, N_ROWS), n_uv_grid + N_COLS + cols], 1)]
-        self._add(np.concatenate([quads.reshape(-1, 3), *fans]),
-                  np.concatenate([uvq.reshape(-1, 3), *fan_uv]), "skin", uv_offset=0)
+        fan_uv = [
+            np.stack([n_uv_grid + cols, t(cols + 1, 1), t(cols, 1)], 1),
+            np.stack([t(cols, N_ROWS), t(cols + 1, N_ROWS), n_uv_grid + N_COLS + cols], 1),
+        ]
+        self._add(
+            np.concatenate([quads.reshape(-1, 3), *fans]),
+            np.concatenate([uvq.reshape(-1, 3), *fan_uv]),
+            "skin",
+            uv_offset=0,
+        )
 
     def _add(self, faces, uv_faces, island, uv_offset=None, uv=None):
         if uv is not None:
@@ -298,8 +330,14 @@ class _Topology:
     def _lid_margin(self, side):
         upper, lower, loop = self.slit_loop(f"eye_{side}")
         margin = self._new_vertices(len(loop))
-        self.groups.update({f"eye_upper_{side}": upper, f"eye_lower_{side}": lower,
-                            f"lid_margin_{side}": margin, f"lid_loop_{side}": loop})
+        self.groups.update(
+            {
+                f"eye_upper_{side}": upper,
+                f"eye_lower_{side}": lower,
+                f"lid_margin_{side}": margin,
+                f"lid_loop_{side}": loop,
+            }
+        )
         v0 = 0.01 if side == "left" else 0.08
         self._strip([loop, margin], "lid_margin", (0.57, v0, 0.66, v0 + 0.05))
 
@@ -308,9 +346,15 @@ class _Topology:
         rings = [self._new_vertices(len(loop)) for _ in CAVITY_RINGS]
         centre = self._new_vertices(1)[0]
         self._strip([loop, *rings], "mouth_cavity", (0.31, 0.01, 0.56, 0.14), close_with=centre)
-        self.groups.update({
-            "lip_ring_upper": upper[::-1], "lip_ring_lower": lower[::-1], "mouth_loop": loop,
-            "mouth_cavity_rings": np.stack(rings), "mouth_cavity_centre": np.array([centre])})
+        self.groups.update(
+            {
+                "lip_ring_upper": upper[::-1],
+                "lip_ring_lower": lower[::-1],
+                "mouth_loop": loop,
+                "mouth_cavity_rings": np.stack(rings),
+                "mouth_cavity_centre": np.array([centre]),
+            }
+        )
 
     def _eyeball(self, side, u_centre):
         n_r, n_s = len(EYEBALL_RINGS), EYEBALL_SEGMENTS
@@ -318,15 +362,17 @@ class _Topology:
         rings = idx[: n_r * n_s].reshape(n_r, n_s)
         front, back = idx[-2], idx[-1]
         self.groups[f"eyeball_{side}"] = idx
-        self.groups[f"eyeball_equator_{side}"] = rings[int(np.argmin(np.abs(EYEBALL_RINGS
-                                                                            - np.pi / 2)))]
+        self.groups[f"eyeball_equator_{side}"] = rings[
+            int(np.argmin(np.abs(EYEBALL_RINGS - np.pi / 2)))
+        ]
         # UV: a disc, the cornea in the middle; radius grows with the polar angle's root so
         # the iris gets room
         radius, v_centre = 0.07, 0.075
         beta = 2 * np.pi * np.arange(n_s + 1) / n_s
         rad = radius * np.sqrt(EYEBALL_RINGS / np.pi)
-        ring_uv = np.stack([u_centre + rad[:, None] * np.cos(beta),
-                            v_centre + rad[:, None] * np.sin(beta)], -1).reshape(-1, 2)
+        ring_uv = np.stack(
+            [u_centre + rad[:, None] * np.cos(beta), v_centre + rad[:, None] * np.sin(beta)], -1
+        ).reshape(-1, 2)
         mid = beta[:-1] + np.pi / n_s
         back_uv = np.stack([u_centre + radius * np.cos(mid), v_centre + radius * np.sin(mid)], 1)
         uv = np.concatenate([ring_uv, [[u_centre, v_centre]], back_uv])
@@ -340,8 +386,10 @@ class _Topology:
             a, b = rings[r, k], rings[r, (k + 1) % n_s]
             c, d = rings[r + 1, (k + 1) % n_s], rings[r + 1, k]
             faces += [np.stack([a, c, b], 1), np.stack([a, d, c], 1)]
-            uvf += [np.stack([t(r, k), t(r + 1, k + 1), t(r, k + 1)], 1),
-                    np.stack([t(r, k), t(r + 1, k), t(r + 1, k + 1)], 1)]
+            uvf += [
+                np.stack([t(r, k), t(r + 1, k + 1), t(r, k + 1)], 1),
+                np.stack([t(r, k), t(r + 1, k), t(r + 1, k + 1)], 1),
+            ]
         last = n_r - 1
         faces.append(np.stack([rings[last, k], np.full(n_s, back), rings[last, (k + 1) % n_s]], 1))
         uvf.append(np.stack([t(last, k), n_ring_uv + 1 + k, t(last, k + 1)], 1))
@@ -365,8 +413,11 @@ def _eyelid_opening(topo: _Topology, theta, phi, side_up, blink):
         down = -((1 - b) * EYE_OPEN_DOWN * shape_down + b * close)
         slit = topo.phi[row - 1]
         d_up, d_down = np.maximum(phi - slit, 0), np.maximum(slit - phi, 0)
-        phi += np.where(side_up, up * np.exp(-(d_up / EYE_FALLOFF_UP) ** 2),
-                        down * np.exp(-(d_down / EYE_FALLOFF_DOWN) ** 2))
+        phi += np.where(
+            side_up,
+            up * np.exp(-((d_up / EYE_FALLOFF_UP) ** 2)),
+            down * np.exp(-((d_down / EYE_FALLOFF_DOWN) ** 2)),
+        )
     return phi
 
 
@@ -391,7 +442,7 @@ def _skin_directions(topo: _Topology, blink) -> tuple[np.ndarray, np.ndarray]:
     idx = np.concatenate(idx)
     # above the eye slit row, plus the row itself except its duplicates (the lower lids)
     side_up = phi >= topo.phi[topo.j_eye - 1]
-    side_up[N_ROWS * N_COLS:] = False
+    side_up[N_ROWS * N_COLS :] = False
     theta, phi = topo.lensed(theta, phi)
     phi = _eyelid_opening(topo, theta, phi, side_up, blink)
     return idx, _directions(theta, phi)
@@ -407,9 +458,14 @@ def build_head() -> HeadMesh:
     _place_lid_margins(topo, verts)
     _place_mouth_cavity(topo, verts)
     _place_eyeballs(topo, verts)
-    return HeadMesh(verts=verts, faces=np.concatenate(topo.faces),
-                    uv=np.concatenate(topo.uv), uv_faces=np.concatenate(topo.uv_faces),
-                    face_island=np.concatenate(topo.islands), groups=dict(topo.groups))
+    return HeadMesh(
+        verts=verts,
+        faces=np.concatenate(topo.faces),
+        uv=np.concatenate(topo.uv),
+        uv_faces=np.concatenate(topo.uv_faces),
+        face_island=np.concatenate(topo.islands),
+        groups=dict(topo.groups),
+    )
 
 
 def closed_lids(head: HeadMesh, blink) -> np.ndarray:
@@ -446,8 +502,7 @@ def _place_mouth_cavity(topo, verts):
     sign[[0, n_up - 1]] = 0.0  # corners
     x = loop[:, 0]
     across = np.sqrt(np.clip(1 - (x / (MOUTH_HALF_WIDTH * 1.05)) ** 2, 0, 1))
-    for ring, (depth, height) in zip(topo.groups["mouth_cavity_rings"], CAVITY_RINGS,
-                                     strict=True):
+    for ring, (depth, height) in zip(topo.groups["mouth_cavity_rings"], CAVITY_RINGS, strict=True):
         p = loop.copy()
         p[:, 0] *= 1 - 0.25 * depth / CAVITY_RINGS[-1][0]
         p[:, 1] = MOUTH_Y + sign * CAVITY_HEIGHT * height * across
@@ -463,7 +518,13 @@ def _place_eyeballs(topo, verts):
     bulge = CORNEA_BULGE * np.clip(1 - (alpha / 0.6) ** 2, 0, 1) ** 2
     for side, centre in zip(("left", "right"), eye_centres(), strict=True):
         r = EYE_RADIUS + bulge
-        ring = np.stack([r * np.sin(alpha) * np.cos(beta), r * np.sin(alpha) * np.sin(beta),
-                         r * np.cos(alpha) * np.ones_like(beta)], -1).reshape(-1, 3)
+        ring = np.stack(
+            [
+                r * np.sin(alpha) * np.cos(beta),
+                r * np.sin(alpha) * np.sin(beta),
+                r * np.cos(alpha) * np.ones_like(beta),
+            ],
+            -1,
+        ).reshape(-1, 3)
         poles = np.array([[0, 0, EYE_RADIUS + CORNEA_BULGE], [0, 0, -EYE_RADIUS]])
         verts[topo.groups[f"eyeball_{side}"]] = centre + np.concatenate([ring, poles])

@@ -12,11 +12,13 @@ from .fields import bump, mirrored, smoothstep
 from .mesh import MOUTH_HALF_WIDTH, HeadMesh, eye_centres
 from .sculpt import MOUTH_Y, MOUTH_Z
 
-JOINT_TARGETS = np.array([
-    [0.0, -0.110, -0.026],  # global: the middle of the neck
-    [0.0, -0.050, -0.022],  # neck: its top, under the skull
-    [0.0, -0.008, 0.012],  # jaw: the axis through both jaw hinges
-])
+JOINT_TARGETS = np.array(
+    [
+        [0.0, -0.110, -0.026],  # global: the middle of the neck
+        [0.0, -0.050, -0.022],  # neck: its top, under the skull
+        [0.0, -0.008, 0.012],  # jaw: the axis through both jaw hinges
+    ]
+)
 ROOT_BLEND = (-0.085, -0.150)  # the neck blends from the neck joint to the root between these y
 
 
@@ -30,8 +32,9 @@ def _project_simplex(w):
     return np.maximum(w - tau, 0)
 
 
-def convex_weights(points: np.ndarray, target: np.ndarray, spread: float = 1e-7,
-                   iterations: int = 2000) -> np.ndarray:
+def convex_weights(
+    points: np.ndarray, target: np.ndarray, spread: float = 1e-7, iterations: int = 2000
+) -> np.ndarray:
     """Weights on the simplex whose combination of `points` (n,3) lands on `target`.
 
     Projected gradient on |w P - target|^2 + spread |w|^2; the small second term spreads
@@ -52,8 +55,14 @@ def joint_regressor(head: HeadMesh) -> np.ndarray:
     v = head.verts
     reg = np.zeros((5, len(v)))
     skin = np.ones(len(v), bool)
-    for name in ("eyeball_left", "eyeball_right", "mouth_cavity_rings", "mouth_cavity_centre",
-                 "lid_margin_left", "lid_margin_right"):
+    for name in (
+        "eyeball_left",
+        "eyeball_right",
+        "mouth_cavity_rings",
+        "mouth_cavity_centre",
+        "lid_margin_left",
+        "lid_margin_right",
+    ):
         skin[head.groups[name].ravel()] = False
     for j, target in enumerate(JOINT_TARGETS):
         if j == 2:  # skin over both jaw hinges
@@ -80,8 +89,11 @@ def jaw_weight(head: HeadMesh, jaw: np.ndarray) -> np.ndarray:
     # at the lips the slit decides: toward it the upper lip goes to 0, the lower lip to 1
     # (1 along the slit, fading to 0 at the corners, where both lips meet the cheeks)
     along = np.sqrt(np.clip(1 - (v[:, 0] / MOUTH_HALF_WIDTH) ** 2, 0, 1))
-    near = ((1 - smoothstep(np.abs(v[:, 1] - MOUTH_Y), 0.002, 0.014)) * along
-            * smoothstep(v[:, 2], 0.06, 0.08))
+    near = (
+        (1 - smoothstep(np.abs(v[:, 1] - MOUTH_Y), 0.002, 0.014))
+        * along
+        * smoothstep(v[:, 2], 0.06, 0.08)
+    )
     upper_ring, lower_ring = head.groups["lip_ring_upper"], head.groups["lip_ring_lower"]
     lower = v[:, 1] < MOUTH_Y
     lower[lower_ring] = True
@@ -104,8 +116,9 @@ def skinning_weights(head: HeadMesh, joints: np.ndarray) -> np.ndarray:
     v = head.verts
     jaw = jaw_weight(head, joints[2])
     root = smoothstep(-v[:, 1], -ROOT_BLEND[0], -ROOT_BLEND[1])
-    weights = np.stack([root * (1 - jaw), (1 - root) * (1 - jaw), jaw,
-                        np.zeros(len(v)), np.zeros(len(v))], 1)
+    weights = np.stack(
+        [root * (1 - jaw), (1 - root) * (1 - jaw), jaw, np.zeros(len(v)), np.zeros(len(v))], 1
+    )
     for j, side in ((3, "left"), (4, "right")):
         eye = head.groups[f"eyeball_{side}"]
         weights[eye] = 0.0
@@ -145,16 +158,22 @@ def pose_correctives(head: HeadMesh, joints: np.ndarray, weights: np.ndarray) ->
             out[:, :, _feature(joint, d, d)] = per_entry
     throat = bump(v, [0.0, -0.112, 0.040], [0.04, 0.03, 0.03])
     nape = bump(v, [0.0, -0.085, -0.075], [0.05, 0.035, 0.03])
-    out[:, :, _feature(1, 2, 1)] = (throat[:, None] * [0.0, -0.002, 0.006]
-                                    + nape[:, None] * [0.0, 0.0, 0.004])
+    out[:, :, _feature(1, 2, 1)] = throat[:, None] * [0.0, -0.002, 0.006] + nape[:, None] * [
+        0.0,
+        0.0,
+        0.004,
+    ]
     under_chin = bump(v, [0.0, -0.100, 0.055], [0.03, 0.018, 0.03])
     out[:, :, _feature(2, 2, 1)] = under_chin[:, None] * [0.0, -0.004, 0.002]
     for joint, centre in ((3, eye_centres()[0]), (4, eye_centres()[1])):
         lids = bump(v, centre + [0, 0, 0.008], [0.02, 0.016, 0.02])
         upper = lids * smoothstep(v[:, 1] - centre[1], -0.001, 0.003)
         lower = lids - upper
-        out[:, :, _feature(joint, 2, 1)] = (upper[:, None] * [0.0, -0.006, 0.0]
-                                            + lower[:, None] * [0.0, -0.003, 0.0])
+        out[:, :, _feature(joint, 2, 1)] = upper[:, None] * [0.0, -0.006, 0.0] + lower[:, None] * [
+            0.0,
+            -0.003,
+            0.0,
+        ]
         out[:, :, _feature(joint, 0, 2)] = lids[:, None] * [0.002, 0.0, 0.0]
     for side in ("left", "right"):
         out[head.groups[f"eyeball_{side}"]] = 0.0

@@ -81,8 +81,11 @@ def head_sdf(p: np.ndarray) -> np.ndarray:
     # midface; jaw narrowing toward the chin; the dental arch under the lips; the chin
     d = _smin(d, ell(p, [0, -0.012, 0.030], [0.063, 0.060, 0.062]), 0.02)
     chin_taper = 1.0 - 0.32 * smoothstep(z, -0.01, 0.085)
-    d = _smin(d, ell(np.stack([x / chin_taper, y, z], -1), [0, -0.059, 0.012],
-                     [0.053, 0.040, 0.068]), 0.018)
+    d = _smin(
+        d,
+        ell(np.stack([x / chin_taper, y, z], -1), [0, -0.059, 0.012], [0.053, 0.040, 0.068]),
+        0.018,
+    )
     d = _smin(d, ell(p, [0, -0.060, 0.061], [0.034, 0.030, 0.034]), 0.015)
     d = _smin(d, ell(p, [0, -0.087, 0.075], [0.021, 0.016, 0.017]), 0.012)
     # neck: an elliptic cylinder whose base sits a little further back, rounded at the bottom
@@ -159,7 +162,7 @@ def vermilion(p):
     """Where the lips are red, 0..1: from the slit up to a bowed line and down to a curve."""
     x, dy = np.abs(p[:, 0]), p[:, 1] - MOUTH_Y
     across = np.sqrt(np.clip(1 - (x / 0.0255) ** 2, 0, 1))
-    bow = 0.0012 * np.exp(-((x - 0.0055) / 0.004) ** 2) - 0.0010 * np.exp(-(x / 0.0025) ** 2)
+    bow = 0.0012 * np.exp(-(((x - 0.0055) / 0.004) ** 2)) - 0.0010 * np.exp(-((x / 0.0025) ** 2))
     upper = 0.0078 * across**0.6 + bow
     lower = 0.0095 * across**0.7
     inside = np.where(dy >= 0, upper - dy, lower + dy)

@@ -71,9 +71,13 @@ def _skin(t):
     m = mirrored(p)
     colour = np.broadcast_to(SKIN, p.shape).copy()
     colour *= (1 + 0.035 * t["tone"] + 0.02 * t["mottle"])[:, None]
-    colour = _mix(colour, CHEEK_RED, 0.18 * bump(m, [0.045, -0.020, 0.068], [0.03, 0.03, 0.04])
-                  + 0.22 * bump(p, [0.0, -0.022, 0.110], [0.016, 0.016, 0.02])
-                  + 0.28 * bump(m, [0.085, 0.005, -0.012], [0.03, 0.04, 0.03]))
+    colour = _mix(
+        colour,
+        CHEEK_RED,
+        0.18 * bump(m, [0.045, -0.020, 0.068], [0.03, 0.03, 0.04])
+        + 0.22 * bump(p, [0.0, -0.022, 0.110], [0.016, 0.016, 0.02])
+        + 0.28 * bump(m, [0.085, 0.005, -0.012], [0.03, 0.04, 0.03]),
+    )
     shade = 0.10 * bump(m, [0.031, 0.004, 0.075], [0.016, 0.008, 0.02])  # under the eyes
     lips = vermilion(p)
     shade += 0.4 * lips * (1 - smoothstep(np.abs(p[:, 1] - MOUTH_Y), 0.0003, 0.0012))  # slit
@@ -120,13 +124,18 @@ def _eyeball(t):
     beta = np.arctan2(local[:, 1], local[:, 0])
     iris_edge = np.arcsin(0.0058 / EYE_RADIUS)
     pupil_edge = 0.16
-    colour = _mix(np.broadcast_to(SCLERA, p.shape), np.array([0.86, 0.66, 0.62]),
-                  0.5 * smoothstep(alpha, 0.9, 1.6))
+    colour = _mix(
+        np.broadcast_to(SCLERA, p.shape),
+        np.array([0.86, 0.66, 0.62]),
+        0.5 * smoothstep(alpha, 0.9, 1.6),
+    )
     fibres = 0.8 + 0.2 * np.cos(beta * 37 + 2 * np.cos(beta * 11)) * (0.6 + 0.8 * t["down"])
-    iris = _mix(np.broadcast_to(IRIS, p.shape), IRIS_INNER, 1 - smoothstep(alpha, pupil_edge,
-                                                                           0.30))
-    iris = iris * fibres[:, None] * (1 - 0.55 * smoothstep(alpha, iris_edge - 0.08,
-                                                           iris_edge))[:, None]
+    iris = _mix(np.broadcast_to(IRIS, p.shape), IRIS_INNER, 1 - smoothstep(alpha, pupil_edge, 0.30))
+    iris = (
+        iris
+        * fibres[:, None]
+        * (1 - 0.55 * smoothstep(alpha, iris_edge - 0.08, iris_edge))[:, None]
+    )
     colour = _mix(colour, iris, smoothstep(iris_edge + 0.02 - alpha, 0.0, 0.03))
     return _mix(colour, PUPIL, smoothstep(pupil_edge - alpha, -0.01, 0.01))
 
@@ -136,18 +145,36 @@ def paint_albedo(head: HeadMesh, size: int = TEXTURE_SIZE) -> np.ndarray:
     rng = np.random.default_rng(SEED)
     table = rasterize(head.uv, head.uv_faces, size)
     covered, f = table.valid, table.face  # texels in row-major order, as covered[] lists them
-    per_vertex = np.column_stack([head.verts, vertex_normals(head), _noise(head.verts, rng, 0.05),
-                                  _noise(head.verts, rng, 0.015), _lash_lines(head)])
+    per_vertex = np.column_stack(
+        [
+            head.verts,
+            vertex_normals(head),
+            _noise(head.verts, rng, 0.05),
+            _noise(head.verts, rng, 0.015),
+            _lash_lines(head),
+        ]
+    )
     at_texels = np.einsum("tkc,tk->tc", per_vertex[head.faces[f]], table.bary)
-    texels = {"p": at_texels[:, :3], "normal": at_texels[:, 3:6], "tone": at_texels[:, 6],
-              "mottle": at_texels[:, 7], "lashes": at_texels[:, 8],
-              "down": _streaks(rng, size, 9, axis=0)[covered],
-              "across": _streaks(rng, size, 5, axis=1)[covered]}
+    texels = {
+        "p": at_texels[:, :3],
+        "normal": at_texels[:, 3:6],
+        "tone": at_texels[:, 6],
+        "mottle": at_texels[:, 7],
+        "lashes": at_texels[:, 8],
+        "down": _streaks(rng, size, 9, axis=0)[covered],
+        "across": _streaks(rng, size, 5, axis=1)[covered],
+    }
     island = head.face_island[f]
-    painters = {"skin": _skin, "eyeball": _eyeball,
-                "lid_margin": lambda t: np.broadcast_to(MARGIN, t["p"].shape),
-                "mouth_cavity": lambda t: _mix(np.broadcast_to(CAVITY, t["p"].shape), CAVITY * 0.4,
-                                               smoothstep(0.085 - t["p"][:, 2], 0.0, 0.03))}
+    painters = {
+        "skin": _skin,
+        "eyeball": _eyeball,
+        "lid_margin": lambda t: np.broadcast_to(MARGIN, t["p"].shape),
+        "mouth_cavity": lambda t: _mix(
+            np.broadcast_to(CAVITY, t["p"].shape),
+            CAVITY * 0.4,
+            smoothstep(0.085 - t["p"][:, 2], 0.0, 0.03),
+        ),
+    }
     colour = np.zeros((len(f), 3))
     for name, paint in painters.items():
         sel = island == ISLANDS.index(name)

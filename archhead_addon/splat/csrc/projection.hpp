@@ -12,10 +12,10 @@
 namespace ah {
 
 constexpr float kAlphaMin = 1.0f / 255.0f;  // samples below this are skipped
-constexpr float kAlphaMax = 0.99f;           // alpha clamp
-constexpr float kTransmittanceMin = 1e-4f;   // a pixel stops once T would fall below this
-constexpr double kQuatNormEps = 1e-12;       // |q| guard, as F.normalize
-constexpr double kDetMin = 1e-10;            // dilated 2D covariance determinant guard
+constexpr float kAlphaMax = 0.99f;          // alpha clamp
+constexpr float kTransmittanceMin = 1e-4f;  // a pixel stops once T would fall below this
+constexpr double kQuatNormEps = 1e-12;      // |q| guard, as F.normalize
+constexpr double kDetMin = 1e-10;           // dilated 2D covariance determinant guard
 
 struct Camera {
     double V[9], t[3];  // world-to-camera linear part and translation
@@ -55,11 +55,11 @@ struct Projection {
     bool visible;
     double qn[4], qnorm;
     double s[3];
-    bool s_active[3];  // log-scale inside the clamp range (gradient passes)
+    bool s_active[3];   // log-scale inside the clamp range (gradient passes)
     double R[9], M[9];  // M = R diag(s), Sigma = M M^T
     double tc[3];
-    double VM[9];       // V M
-    double Sc[9];       // camera-space covariance V Sigma V^T = VM VM^T
+    double VM[9];               // V M
+    double Sc[9];               // camera-space covariance V Sigma V^T = VM VM^T
     double rx_ratio, ry_ratio;  // clamped x/z and y/z used in J
     bool x_free, y_free;        // clamp inactive
     double J[6];
@@ -107,8 +107,8 @@ inline void mat3_mul(const double* A, const double* B, double* C) {
 inline void mat3_mul_bt(const double* A, const double* B, double* C) {
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j)
-            C[3 * i + j] = A[3 * i] * B[3 * j] + A[3 * i + 1] * B[3 * j + 1] +
-                           A[3 * i + 2] * B[3 * j + 2];
+            C[3 * i + j] =
+                A[3 * i] * B[3 * j] + A[3 * i + 1] * B[3 * j + 1] + A[3 * i + 2] * B[3 * j + 2];
 }
 // C = A^T B (3x3).
 inline void mat3_mul_at(const double* A, const double* B, double* C) {
@@ -141,8 +141,8 @@ inline Projection project_gaussian(const Camera& cam, const float* mean, const f
 
     const double m[3] = {mean[0], mean[1], mean[2]};
     for (int i = 0; i < 3; ++i)
-        P.tc[i] = cam.V[3 * i] * m[0] + cam.V[3 * i + 1] * m[1] + cam.V[3 * i + 2] * m[2] +
-                  cam.t[i];
+        P.tc[i] =
+            cam.V[3 * i] * m[0] + cam.V[3 * i + 1] * m[1] + cam.V[3 * i + 2] * m[2] + cam.t[i];
     const double tz = P.tc[2];
     if (!(tz > cam.near_plane && tz < cam.far_plane)) return P;
     P.mean2d[0] = cam.fx * P.tc[0] / tz + cam.cx;
@@ -270,8 +270,8 @@ inline void project_gaussian_vjp(const Camera& cam, const Projection& P, const P
     double dJ[6];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 3; ++j)
-            dJ[3 * i + j] = (dcov[2 * i] + dcov[i]) * JSc[j] +
-                            (dcov[2 * i + 1] + dcov[2 + i]) * JSc[3 + j];
+            dJ[3 * i + j] =
+                (dcov[2 * i] + dcov[i]) * JSc[j] + (dcov[2 * i + 1] + dcov[2 + i]) * JSc[3 + j];
     double dSc[9];
     for (int a = 0; a < 3; ++a)
         for (int b = 0; b < 3; ++b)
@@ -283,10 +283,14 @@ inline void project_gaussian_vjp(const Camera& cam, const Projection& P, const P
     dt[2] += -cam.fx / tz2 * dJ[0] - cam.fy / tz2 * dJ[4] + 2 * cam.fx * txp / tz3 * dJ[2] +
              2 * cam.fy * typ / tz3 * dJ[5];
     const double dtxp = -cam.fx / tz2 * dJ[2], dtyp = -cam.fy / tz2 * dJ[5];
-    if (P.x_free) dt[0] += dtxp;
-    else dt[2] += P.rx_ratio * dtxp;
-    if (P.y_free) dt[1] += dtyp;
-    else dt[2] += P.ry_ratio * dtyp;
+    if (P.x_free)
+        dt[0] += dtxp;
+    else
+        dt[2] += P.rx_ratio * dtxp;
+    if (P.y_free)
+        dt[1] += dtyp;
+    else
+        dt[2] += P.ry_ratio * dtyp;
 
     // tc = V mean + t
     for (int j = 0; j < 3; ++j)
@@ -315,8 +319,8 @@ inline void project_gaussian_vjp(const Camera& cam, const Projection& P, const P
                   w * dR[7] - 2 * x * dR[8]);
     dqn[2] = 2 * (-2 * y * dR[0] + x * dR[1] + w * dR[2] + x * dR[3] + z * dR[5] - w * dR[6] +
                   z * dR[7] - 2 * y * dR[8]);
-    dqn[3] = 2 * (-2 * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - 2 * z * dR[4] +
-                  y * dR[5] + x * dR[6] + y * dR[7]);
+    dqn[3] = 2 * (-2 * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - 2 * z * dR[4] + y * dR[5] +
+                  x * dR[6] + y * dR[7]);
     // qn = q / max(|q|, eps)
     if (P.qnorm > kQuatNormEps) {
         const double dot = w * dqn[0] + x * dqn[1] + y * dqn[2] + z * dqn[3];

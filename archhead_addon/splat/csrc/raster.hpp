@@ -243,8 +243,8 @@ AH_HOT inline void composite_backward(const std::vector<TileSplat>& G, const Til
             const float ga = g_alpha ? g_alpha[o] : 0.0f;
             T[p] = T_final[o];
             // rgb = ... + T bg and alpha = 1 - T: dL/dT_final, times T_final.
-            behind[p] = (gr[p] * background[0] + gg[p] * background[1] +
-                         gb[p] * background[2] - ga) * T[p];
+            behind[p] =
+                (gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2] - ga) * T[p];
             last[p] = last_in[o];
             row_last[py] = std::max(row_last[py], last[p]);
         }

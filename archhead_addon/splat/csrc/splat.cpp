@@ -55,8 +55,7 @@ bool check_params(const ah_splat_params* p, char* err, int32_t err_len) {
     if (!(near(v[12], 0) && near(v[13], 0) && near(v[14], 0) && near(v[15], 1)))
         return fail("viewmat's last row must be [0, 0, 0, 1]");
     const double* K = p->K;
-    if (!(near(K[1] / K[0], 0) && near(K[3], 0) && near(K[6], 0) && near(K[7], 0) &&
-          near(K[8], 1)))
+    if (!(near(K[1] / K[0], 0) && near(K[3], 0) && near(K[6], 0) && near(K[7], 0) && near(K[8], 1)))
         return fail("K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)");
     if (!(K[0] > 0 && K[4] > 0)) return fail("K[0,0] and K[1,1] must be positive");
     if (!(std::isfinite(p->near_plane) && p->near_plane > 0))
@@ -117,8 +116,8 @@ void project_all(Context& C) {
     std::vector<int32_t> ids;
     for (int64_t i = 0; i < n; ++i)
         if (visible[i]) ids.push_back(int32_t(i));
-    bin_tiles(C.bins, sort_by_depth(ids, depth64), C.proj.bbox, C.params.width,
-              C.params.height, thread_count(C.params));
+    bin_tiles(C.bins, sort_by_depth(ids, depth64), C.proj.bbox, C.params.width, C.params.height,
+              thread_count(C.params));
 }
 
 TileFrame frame_of(const Context& C, int64_t tile) {
@@ -138,8 +137,7 @@ void for_each_tile(Context& C, Body&& body) {
         for (int64_t t = 0; t < n_tiles; ++t) {
             const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
             const TileFrame f = frame_of(C, t);
-            gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox,
-                        f.oy);
+            gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox, f.oy);
             body(G, f, s);
         }
     }
@@ -215,8 +213,8 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
     const Camera cam(*params);
 #pragma omp parallel for num_threads(thread_count(*params)) schedule(static)
     for (int64_t i = 0; i < n; ++i) {
-        const Projection P = project_gaussian(cam, &means[3 * i], &log_scales[3 * i],
-                                              &quats[4 * i], opacity_logits[i]);
+        const Projection P = project_gaussian(cam, &means[3 * i], &log_scales[3 * i], &quats[4 * i],
+                                              opacity_logits[i]);
         Bounds B;
         const bool visible = P.visible && screen_bounds(cam, P, B);
         means2d[2 * i] = visible ? P.mean2d[0] : 0.0;
@@ -231,9 +229,9 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
 }
 
 void* ah_splat_forward(const ah_splat_params* params, int64_t n, const float* means,
-                       const float* log_scales, const float* quats,
-                       const float* opacity_logits, const float* colors, float* out_rgb,
-                       float* out_alpha, float* out_depth, char* err, int32_t err_len) {
+                       const float* log_scales, const float* quats, const float* opacity_logits,
+                       const float* colors, float* out_rgb, float* out_alpha, float* out_depth,
+                       char* err, int32_t err_len) {
     if (!check_params(params, err, err_len)) return nullptr;
     if (n < 0 || n > INT32_MAX) {
         set_error(err, err_len, "number of Gaussians out of range");
@@ -258,8 +256,8 @@ void* ah_splat_forward(const ah_splat_params* params, int64_t n, const float* me
 }
 
 int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const float* g_depth,
-                      float* d_means, float* d_log_scales, float* d_quats,
-                      float* d_opacity_logits, float* d_colors, char* err, int32_t err_len) {
+                      float* d_means, float* d_log_scales, float* d_quats, float* d_opacity_logits,
+                      float* d_colors, char* err, int32_t err_len) {
     if (!ctx || !g_rgb) {
         set_error(err, err_len, "splat backward needs a forward context and g_rgb");
         return -1;

@@ -48,15 +48,15 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
 // Renders and returns an opaque context holding what the backward pass needs (free it with
 // ah_splat_release), or NULL with a message in err.
 void* ah_splat_forward(const ah_splat_params* params, int64_t n, const float* means,
-                       const float* log_scales, const float* quats,
-                       const float* opacity_logits, const float* colors, float* out_rgb,
-                       float* out_alpha, float* out_depth, char* err, int32_t err_len);
+                       const float* log_scales, const float* quats, const float* opacity_logits,
+                       const float* colors, float* out_rgb, float* out_alpha, float* out_depth,
+                       char* err, int32_t err_len);
 
 // Gradients of a scalar loss given dL/d(rgb, alpha, depth) (g_alpha / g_depth may be NULL
 // for zero). Writes (overwrites) all five gradient arrays. Returns 0, or -1 with err set.
 int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const float* g_depth,
-                      float* d_means, float* d_log_scales, float* d_quats,
-                      float* d_opacity_logits, float* d_colors, char* err, int32_t err_len);
+                      float* d_means, float* d_log_scales, float* d_quats, float* d_opacity_logits,
+                      float* d_colors, char* err, int32_t err_len);
 
 // stats[0] = Gaussians that survived culling, stats[1] = tile intersections.
 void ah_splat_stats(const void* ctx, int64_t* stats);

@@ -17,26 +17,25 @@ from __future__ import annotations
 import bpy
 from bpy.app.handlers import persistent
 
-from ..archhead_addon.avatar.decode_cache import SplatFrame
-from ..archhead_addon.avatar.frame_selection import held_frame
-from ..archhead_addon.avatar.point_attributes import point_attributes
-from ..archhead_addon.io.errors import InputError
+from archhead_addon.avatar.decode_cache import SplatFrame
+from archhead_addon.avatar.frame_selection import held_frame
+from archhead_addon.avatar.point_attributes import point_attributes
+from archhead_addon.io.errors import InputError
+
 from .avatar_props import is_avatar
-from .avatar_session import drop_sessions, forget_shown, session
+from .avatar_session import forget_shown, session
 from .point_instances import write_points
 from .scene_state import avatar_lod, camera_in_object, frame_codes
-
-_state = {"suspended": 0}
-errors: dict[int, str] = {}  # object session_uid -> the last error (shown in the N-panel)
+from .state import STATE, reset
 
 
 def suspend() -> None:
     """Bulk work that moves frames itself (decoding a frame set) pauses the refreshes."""
-    _state["suspended"] += 1
+    STATE.suspended += 1
 
 
 def resume() -> None:
-    _state["suspended"] = max(_state["suspended"] - 1, 0)
+    STATE.suspended = max(STATE.suspended - 1, 0)
 
 
 def frame_to_show(obj, scene, depsgraph) -> tuple[str, SplatFrame]:
@@ -71,18 +70,18 @@ def refresh_avatar(obj, scene, depsgraph) -> bool:
 
 
 def refresh_scene(scene, depsgraph) -> None:
-    if _state["suspended"]:
+    if STATE.suspended:
         return
     for obj in scene.objects:
         if not is_avatar(obj):
             continue
         try:
             refresh_avatar(obj, scene, depsgraph)
-            errors.pop(obj.session_uid, None)
+            STATE.errors.pop(obj.session_uid, None)
         except (InputError, OSError, ValueError, KeyError) as exc:
-            if errors.get(obj.session_uid) != str(exc):  # say it once, not every update
+            if STATE.errors.get(obj.session_uid) != str(exc):  # say it once, not every update
                 print(f"ArchHead: {obj.name}: {exc}")
-            errors[obj.session_uid] = str(exc)
+            STATE.errors[obj.session_uid] = str(exc)
 
 
 @persistent
@@ -97,9 +96,9 @@ def on_depsgraph_update(scene, depsgraph):
 
 @persistent
 def on_load(_filepath):
-    drop_sessions()
-    errors.clear()
-    _state["suspended"] = 0  # a decode interrupted by loading a file never resumed
+    """A new file: its objects have new session ids, and a decode or training run that the
+    old file's modal operator watched is gone with it (a paused decode never resumed)."""
+    reset()
 
 
 @persistent
@@ -108,11 +107,13 @@ def on_undo(*_args):
     forget_shown()
 
 
-_HANDLERS = ((bpy.app.handlers.frame_change_post, on_frame_change),
-             (bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
-             (bpy.app.handlers.load_post, on_load),
-             (bpy.app.handlers.undo_post, on_undo),
-             (bpy.app.handlers.redo_post, on_undo))
+_HANDLERS = (
+    (bpy.app.handlers.frame_change_post, on_frame_change),
+    (bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
+    (bpy.app.handlers.load_post, on_load),
+    (bpy.app.handlers.undo_post, on_undo),
+    (bpy.app.handlers.redo_post, on_undo),
+)
 
 
 def register():
@@ -125,4 +126,3 @@ def unregister():
     for handlers, fn in _HANDLERS:
         while fn in handlers:
             handlers.remove(fn)
-    drop_sessions()

@@ -24,9 +24,13 @@ ICO_SUBDIVISIONS = 2  # 80 faces: the falloff, not the facets, shapes each Gauss
 NODE_GROUP = "ArchHead Gaussians"
 MATERIAL = "ArchHead Gaussian"
 # attribute name -> (type, foreach_set field, components)
-ATTRIBUTES = {"scale": ("FLOAT_VECTOR", "vector", 3), "rotation": ("QUATERNION", "value", 4),
-              "opacity": ("FLOAT", "value", 1), "colour": ("FLOAT_COLOR", "color", 4),
-              "colour_view": ("FLOAT_COLOR", "color", 4)}
+ATTRIBUTES = {
+    "scale": ("FLOAT_VECTOR", "vector", 3),
+    "rotation": ("QUATERNION", "value", 4),
+    "opacity": ("FLOAT", "value", 1),
+    "colour": ("FLOAT_COLOR", "color", 4),
+    "colour_view": ("FLOAT_COLOR", "color", 4),
+}
 
 
 def create_point_object(name: str, parent, collection):
@@ -139,15 +143,21 @@ def gaussian_material():
     geometry = nodes.new("ShaderNodeNewGeometry")
     to_object = nodes.new("ShaderNodeVectorTransform")
     to_object.vector_type, to_object.convert_from, to_object.convert_to = (
-        "VECTOR", "WORLD", "OBJECT")
+        "VECTOR",
+        "WORLD",
+        "OBJECT",
+    )
     links.new(geometry.outputs["Incoming"], to_object.inputs["Vector"])
     view = math.vector("NORMALIZE", to_object.outputs["Vector"])
     p = coords.outputs["Object"]  # the hit point in the instance's unit-sphere space
     along = math.vector("DOT_PRODUCT", p, view, out="Value")
     # squared distance of the ray from the centre: |p|^2 - (p . v)^2
-    d2 = math.scalar("SUBTRACT", math.vector("DOT_PRODUCT", p, p, out="Value"),
-                     math.scalar("MULTIPLY", along, along))
-    falloff = math.scalar("EXPONENT", math.scalar("MULTIPLY", d2, -0.5 * SIGMA_EXTENT ** 2))
+    d2 = math.scalar(
+        "SUBTRACT",
+        math.vector("DOT_PRODUCT", p, p, out="Value"),
+        math.scalar("MULTIPLY", along, along),
+    )
+    falloff = math.scalar("EXPONENT", math.scalar("MULTIPLY", d2, -0.5 * SIGMA_EXTENT**2))
     opacity = _instancer_attribute(nodes, "opacity").outputs["Fac"]
     front = math.scalar("SUBTRACT", 1.0, geometry.outputs["Backfacing"])
     alpha = math.scalar("MULTIPLY", math.scalar("MULTIPLY", falloff, opacity), front)

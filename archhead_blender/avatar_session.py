@@ -11,24 +11,23 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..archhead_addon.avatar.checkpoint_format import read_checkpoint
-from ..archhead_addon.avatar.decode_cache import (
+from archhead_addon.avatar.checkpoint_format import read_checkpoint
+from archhead_addon.avatar.decode_cache import (
     DiskCache,
     MemoryCache,
     SplatFrame,
     file_digest,
     frame_key,
 )
-from ..archhead_addon.avatar.lod import resolution_for_lod
-from ..archhead_addon.avatar.runtime import AvatarRuntime
-from ..archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
-from ..archhead_addon.flame.model import FlameModel, load_model
-from ..panels.preferences import get_preferences
+from archhead_addon.avatar.lod import resolution_for_lod
+from archhead_addon.avatar.runtime import AvatarRuntime
+from archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
+from archhead_addon.flame.model import FlameModel, load_model
+
+from .preferences import get_preferences
+from .state import STATE
 
 PRECISION = "fp32"
-_base_models: dict[str, FlameModel] = {}
-_sessions: dict[int, AvatarSession] = {}
-_failures: dict[int, tuple[tuple, Exception]] = {}
 
 
 @dataclass
@@ -48,9 +47,9 @@ def flame_model_path(context=None) -> str:
 def base_model(path: str = "") -> FlameModel:
     """The FLAME model without teeth (the runtime adds them), loaded once per path."""
     key = str(path or "")
-    if key not in _base_models:
-        _base_models[key] = load_model(key or None)
-    return _base_models[key]
+    if key not in STATE.base_models:
+        STATE.base_models[key] = load_model(key or None)
+    return STATE.base_models[key]
 
 
 class AvatarSession:
@@ -85,9 +84,10 @@ class AvatarSession:
             splat = self.disk.get(key)
         if splat is None:
             kwargs = codes.as_kwargs()
-            kwargs["expr"] = kwargs["expr"][:self.n_expr]
-            gaussians = self.runtime.decode(resolution_for_lod(lod)[0], precision=PRECISION,
-                                            **kwargs)
+            kwargs["expr"] = kwargs["expr"][: self.n_expr]
+            gaussians = self.runtime.decode(
+                resolution_for_lod(lod)[0], precision=PRECISION, **kwargs
+            )
             splat = SplatFrame.from_gaussians(gaussians)
             if self.disk is not None:
                 self.disk.put(key, splat)
@@ -98,8 +98,15 @@ class AvatarSession:
 def _source(obj) -> tuple:
     """The settings a session is built from; a change of any makes a new session."""
     s = obj.archhead_avatar
-    return (bpy.path.abspath(s.checkpoint), s.identity, s.head.name if s.head else "",
-            flame_model_path(), s.disk_cache, bpy.path.abspath(s.cache_dir), s.memory_mb)
+    return (
+        bpy.path.abspath(s.checkpoint),
+        s.identity,
+        s.head.name if s.head else "",
+        flame_model_path(),
+        s.disk_cache,
+        bpy.path.abspath(s.cache_dir),
+        s.memory_mb,
+    )
 
 
 def _disk_cache(settings) -> DiskCache | None:
@@ -115,33 +122,28 @@ def session(obj) -> AvatarSession:
     """The object's session, rebuilt when its settings changed. A failure is remembered with
     its settings and raised again without retrying (handlers ask on every update)."""
     uid, source = obj.session_uid, _source(obj)
-    current = _sessions.get(uid)
+    current = STATE.sessions.get(uid)
     if current is not None and current.source == source:
         return current
-    failed = _failures.get(uid)
+    failed = STATE.failures.get(uid)
     if failed is not None and failed[0] == source:
         raise failed[1]
     try:
-        current = _sessions[uid] = AvatarSession(obj)
+        current = STATE.sessions[uid] = AvatarSession(obj)
     except (OSError, ValueError, KeyError) as exc:  # InputError is a ValueError
-        _failures[uid] = (source, exc)
+        STATE.failures[uid] = (source, exc)
         raise
-    _failures.pop(uid, None)
+    STATE.failures.pop(uid, None)
     return current
 
 
 def drop_session(obj) -> None:
     """Forget the object's session (its checkpoint file was replaced)."""
-    _sessions.pop(obj.session_uid, None)
-    _failures.pop(obj.session_uid, None)
+    STATE.sessions.pop(obj.session_uid, None)
+    STATE.failures.pop(obj.session_uid, None)
 
 
 def forget_shown() -> None:
     """The point objects may no longer hold what their sessions showed (undo, redo)."""
-    for current in _sessions.values():
+    for current in STATE.sessions.values():
         current.shown = None
-
-
-def drop_sessions() -> None:
-    _sessions.clear()
-    _failures.clear()

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
-from ..archhead_addon.flame.model import JOINT_NAMES
+from archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
+from archhead_addon.flame.model import JOINT_NAMES
 
 
 def head_rig(head):
@@ -43,8 +43,9 @@ def frame_codes(head, depsgraph, joint_dirs: np.ndarray) -> FrameCodes:
     basis = np.array([np.array(rig.pose.bones[name].matrix_basis) for name in JOINT_NAMES])
     rotations = basis[:, :3, :3] / np.linalg.norm(basis[:, :3, :3], axis=1, keepdims=True)
     n_expr = min(int(head.get("archhead_n_expr", 0)), len(joint_dirs))
-    return codes_from_rig(rotations, basis[0, :3, 3], expression_values(head, depsgraph, n_expr),
-                          joint_dirs)
+    return codes_from_rig(
+        rotations, basis[0, :3, 3], expression_values(head, depsgraph, n_expr), joint_dirs
+    )
 
 
 def avatar_lod(obj, depsgraph) -> float:

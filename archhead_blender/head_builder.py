@@ -12,18 +12,19 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from ..archhead_addon.camera import (
+from archhead_addon.camera import (
     FLAME_TO_BLENDER,
     intrinsics_to_blender,
     w2c_to_blender_matrix_world,
 )
-from ..archhead_addon.flame.model import JOINT_NAMES
-from ..archhead_addon.rig import (
+from archhead_addon.flame.model import JOINT_NAMES
+from archhead_addon.rig import (
     POSE_FEATURE_EXPRESSIONS,
     continuous_quaternions,
     pose_corrective_names,
     rig_animation,
 )
+
 from .keyframes import ActionWriter
 
 BONE_LENGTH = 0.02  # metres; only the display length, rest frames stay axis-aligned
@@ -48,12 +49,15 @@ class _Created:
 
     def remove_all(self):
         for id_block in reversed(self.ids):
-            collection = {bpy.types.Object: bpy.data.objects, bpy.types.Mesh: bpy.data.meshes,
-                          bpy.types.Armature: bpy.data.armatures,
-                          bpy.types.Camera: bpy.data.cameras,
-                          bpy.types.Material: bpy.data.materials,
-                          bpy.types.Image: bpy.data.images,
-                          bpy.types.Action: bpy.data.actions}
+            collection = {
+                bpy.types.Object: bpy.data.objects,
+                bpy.types.Mesh: bpy.data.meshes,
+                bpy.types.Armature: bpy.data.armatures,
+                bpy.types.Camera: bpy.data.cameras,
+                bpy.types.Material: bpy.data.materials,
+                bpy.types.Image: bpy.data.images,
+                bpy.types.Action: bpy.data.actions,
+            }
             for cls, data in collection.items():
                 if isinstance(id_block, cls):
                     data.remove(id_block)
@@ -189,7 +193,7 @@ def _skin(head, arm_obj, model):
         order = np.argsort(inverse, kind="stable")
         bounds = np.searchsorted(inverse[order], np.arange(len(values) + 1))
         for k, value in enumerate(values):
-            group.add(nonzero[order[bounds[k]:bounds[k + 1]]].tolist(), float(value), "REPLACE")
+            group.add(nonzero[order[bounds[k] : bounds[k + 1]]].tolist(), float(value), "REPLACE")
     modifier = head.modifiers.new("Armature", "ARMATURE")
     modifier.object = arm_obj
     modifier.use_deform_preserve_volume = False  # FLAME is linear blend skinning
@@ -200,8 +204,10 @@ def _shape_keys(head, rig, options):
     rest = rig.rest_vertices
     keys = [(f"expr_{i:03d}", d) for i, d in enumerate(rig.expr_deltas)]
     if options.pose_correctives != "NONE":
-        keys += [(name, d) for (name, _, _), d in zip(pose_corrective_names(), rig.pose_deltas,
-                                                       strict=True)]
+        keys += [
+            (name, d)
+            for (name, _, _), d in zip(pose_corrective_names(), rig.pose_deltas, strict=True)
+        ]
     for name, delta in keys:
         key = head.shape_key_add(name=name, from_mix=False)
         key.data.foreach_set("co", (rest + delta).astype(np.float32).ravel())

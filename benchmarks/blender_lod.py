@@ -1,6 +1,6 @@
 """Benchmark: what a change of the avatar's level of detail costs in Blender.
 
-    python operators/bench_lod.py [--repeats 10] [--checkpoint AVATAR.npz]
+    python benchmarks/blender_lod.py [--repeats 10] [--checkpoint AVATAR.npz]
                                   [--sweep STEP --json FILE]
 
 Runs with 2 BLAS / OpenMP threads (restarting itself with them set). Imports the demo head,
@@ -17,16 +17,13 @@ them to the --json file (the report of `python -m archhead_addon.bench` reads it
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-HERE = Path(__file__).resolve().parent
 
 
 def _ensure_two_threads() -> None:
@@ -37,22 +34,18 @@ def _ensure_two_threads() -> None:
 
 def _ms(fn, repeats: int) -> float:
     """Median milliseconds of fn(i) over i = 0 .. repeats - 1."""
-    import numpy as np
+    from archhead_blender import api
 
-    times = []
-    for i in range(repeats):
-        start = time.perf_counter()
-        fn(i)
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
+    return api.time_calls(fn, repeats, with_index=True).median_ms
 
 
 def main(argv) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--checkpoint", help="avatar checkpoint (default: an untrained one)")
-    parser.add_argument("--sweep", type=float, help="time LOD changes at every multiple of "
-                        "this step only")
+    parser.add_argument(
+        "--sweep", type=float, help="time LOD changes at every multiple of this step only"
+    )
     parser.add_argument("--json", help="with --sweep: the file to write the timings to")
     args = parser.parse_args(argv)
     if (args.sweep is None) != (args.json is None):
@@ -60,26 +53,23 @@ def main(argv) -> None:
 
     import bpy
 
-    sys.path[:0] = [str(HERE.parent), str(HERE)]
-    from script_import import enable_addon
+    from archhead_blender import api
 
-    from archhead_addon.avatar.lod import resolution_for_lod
-    from archhead_addon.avatar.point_attributes import point_attributes
-    from archhead_addon.sequences import write_canonical
-    from archhead_addon.sequences.demo import demo_sequence
-
-    module = enable_addon()
+    api.enable_addon()
     folder = Path(tempfile.mkdtemp())
-    checkpoint = Path(args.checkpoint) if args.checkpoint else _untrained(folder)
+    checkpoint = (
+        Path(args.checkpoint)
+        if args.checkpoint
+        else api.untrained_checkpoint(folder / "untrained.npz")
+    )
     bpy.ops.wm.read_homefile(use_empty=True)
-    write_canonical(demo_sequence(frames=30), folder / "demo.npz")
+    api.write_canonical(api.demo_sequence(frames=30), folder / "demo.npz")
     bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
     head = bpy.data.objects["demo"]
     bpy.context.view_layer.objects.active = head
     bpy.ops.archhead.load_avatar(filepath=str(checkpoint))
     obj = bpy.data.objects["demo_avatar"]
-    ops = importlib.import_module(f"{module}.operators")
-    runtime = ops.avatar_session.session(obj).runtime
+    runtime = api.session(obj).runtime
     settings = obj.archhead_avatar
     view_layer = bpy.context.view_layer
 
@@ -99,23 +89,30 @@ def main(argv) -> None:
             lod = round(i * args.sweep, 6)
             set_lod(lod)  # builds this resolution's tables
             total = _ms(lambda i, lod=lod: set_lod(near(lod)), args.repeats)
-            rows.append({"lod": lod, "resolution": runtime.resolution(lod),
-                         "points": len(obj.data.vertices), "update_ms": total})
+            rows.append(
+                {
+                    "lod": lod,
+                    "resolution": runtime.resolution(lod),
+                    "points": len(obj.data.vertices),
+                    "update_ms": total,
+                }
+            )
         Path(args.json).write_text(json.dumps(rows, indent=1))
         return
 
     rows = []
     for lod in (0.0, 1.0):
-        size = resolution_for_lod(lod)[1]
+        size = api.resolution_for_lod(lod)[1]
         set_lod(lod)  # builds this resolution's tables
         total = _ms(lambda i, lod=lod: set_lod(near(lod)), args.repeats)
-        codes = ops.scene_state.frame_codes(head, bpy.context.evaluated_depsgraph_get(),
-                                            ops.avatar_session.session(obj).joint_dirs)
+        codes = api.frame_codes(
+            head, bpy.context.evaluated_depsgraph_get(), api.session(obj).joint_dirs
+        )
         kwargs = codes.as_kwargs()
         decode = _ms(lambda i, lod=lod, kw=kwargs: runtime.decode(lod, **kw), args.repeats)
-        frame = ops.avatar_session.session(obj).frame(codes, lod)[1]
-        attrs = point_attributes(frame)
-        write = _ms(lambda i, a=attrs: ops.point_instances.write_points(obj, a), args.repeats)
+        frame = api.session(obj).frame(codes, lod)[1]
+        attrs = api.point_attributes(frame)
+        write = _ms(lambda i, a=attrs: api.write_points(obj, a), args.repeats)
 
         def first_visit(i, lod=lod):
             runtime.level.cache_clear()
@@ -134,26 +131,22 @@ def main(argv) -> None:
             bpy.context.scene.frame_set(frame)
         playback[lod] = _ms(lambda i: bpy.context.scene.frame_set(1 + i % 5), 10)
 
-    print("| l | S | Gaussians | LOD change total ms | decode ms | write points ms "
-          "| first visit of S ms | cached frame change ms |")
+    print(
+        "| l | S | Gaussians | LOD change total ms | decode ms | write points ms "
+        "| first visit of S ms | cached frame change ms |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for lod, size, count, total, decode, write, build in rows:
-        print(f"| {lod:.0f} | {size} | {count:,} | {total:.0f} | {decode:.0f} | {write:.1f} "
-              f"| {build:.0f} | {playback[lod]:.0f} |")
-    print(f"\nScrubbing the slider 0 -> 1 in steps of 0.05 (a new S at every step): "
-          f"{scrub:.0f} ms per change (median)")
-
-
-def _untrained(folder: Path) -> Path:
-    from archhead_addon.avatar.checkpoint import save_avatar
-    from archhead_addon.avatar.model import ArchHeadAvatar
-    from archhead_addon.flame import load_model
-
-    path = folder / "untrained.npz"
-    save_avatar(path, ArchHeadAvatar.create(load_model()))
-    return path
+        print(
+            f"| {lod:.0f} | {size} | {count:,} | {total:.0f} | {decode:.0f} | {write:.1f} "
+            f"| {build:.0f} | {playback[lod]:.0f} |"
+        )
+    print(
+        f"\nScrubbing the slider 0 -> 1 in steps of 0.05 (a new S at every step): "
+        f"{scrub:.0f} ms per change (median)"
+    )
 
 
 if __name__ == "__main__":
     _ensure_two_threads()
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
+    main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:])

@@ -1,7 +1,7 @@
 """Benchmark: import a long tracked sequence (default 1,000 frames, 100 expressions).
 
-    python operators/bench_import.py [--frames 1000] [--expressions 100]
-    blender -b --python operators/bench_import.py -- [--frames 1000]
+    python benchmarks/blender_import.py [--frames 1000] [--expressions 100]
+    blender -b --python benchmarks/blender_import.py -- [--frames 1000]
 
 Prints seconds for reading + building, the per-frame evaluation time of the rig, the scene's
 memory (growth of resident memory across the import, each mode in a fresh process) and the
@@ -15,18 +15,12 @@ import resource
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import bpy
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE.parent), str(HERE)]  # the core package, and the sibling script
-from script_import import enable_addon  # noqa: E402
-
-from archhead_addon.sequences import write_canonical  # noqa: E402
-from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
+from archhead_blender import api
 
 MODES = ("DRIVERS", "KEYFRAMES", "NONE")
 
@@ -40,40 +34,60 @@ def main(argv):
     if args.mode:
         print(measure(args.frames, args.expressions, args.mode))
         return
-    print("| frames | expressions | correctives | import s | frame change ms |"
-          " scene memory MB | .blend MB |")
+    print(
+        "| frames | expressions | correctives | import s | frame change ms |"
+        " scene memory MB | .blend MB |"
+    )
     print("|---|---|---|---|---|---|---|")
     for mode in MODES:  # a fresh process each, so memory growth is the scene's alone
-        out = subprocess.run([sys.executable, __file__, "--frames", str(args.frames),
-                              "--expressions", str(args.expressions), "--mode", mode],
-                             check=True, capture_output=True, text=True).stdout
+        out = subprocess.run(
+            [
+                sys.executable,
+                __file__,
+                "--frames",
+                str(args.frames),
+                "--expressions",
+                str(args.expressions),
+                "--mode",
+                mode,
+            ],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
         print(next(line for line in out.splitlines() if line.startswith("| ")))
 
 
 def measure(frames: int, expressions: int, mode: str) -> str:
-    enable_addon()
+    api.enable_addon()
     folder = Path(tempfile.mkdtemp())
     path, warmup = folder / "bench.npz", folder / "warmup.npz"
-    write_canonical(demo_sequence(frames), path)
-    write_canonical(demo_sequence(5), warmup)
+    api.write_canonical(api.demo_sequence(frames), path)
+    api.write_canonical(api.demo_sequence(5), warmup)
     bpy.ops.archhead.import_sequence(filepath=str(warmup))  # loads model and code, unmeasured
     bpy.ops.wm.read_homefile(use_empty=True)
     rss_before = _rss_mb()
-    start = time.perf_counter()
-    bpy.ops.archhead.import_sequence(filepath=str(path), n_expr=expressions,
-                                     pose_correctives=mode)
-    seconds = time.perf_counter() - start
+    seconds = (
+        api.time_calls(
+            lambda: bpy.ops.archhead.import_sequence(
+                filepath=str(path), n_expr=expressions, pose_correctives=mode
+            ),
+            1,
+        ).min_ms
+        / 1e3
+    )
     scene_mb = _rss_mb() - rss_before
     scene = bpy.context.scene
     samples = np.linspace(scene.frame_start, scene.frame_end, 50).astype(int)
-    start = time.perf_counter()
-    for frame in samples:
-        scene.frame_set(int(frame))
-    per_frame = (time.perf_counter() - start) / len(samples) * 1000
+    per_frame = api.time_calls(
+        lambda i: scene.frame_set(int(samples[i])), len(samples), with_index=True
+    ).mean_ms
     blend = folder / "bench.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), compress=False)
-    return (f"| {frames} | {expressions} | {mode.lower()} | {seconds:.2f} | {per_frame:.1f} | "
-            f"{scene_mb:.0f} | {blend.stat().st_size / 2**20:.1f} |")
+    return (
+        f"| {frames} | {expressions} | {mode.lower()} | {seconds:.2f} | {per_frame:.1f} | "
+        f"{scene_mb:.0f} | {blend.stat().st_size / 2**20:.1f} |"
+    )
 
 
 def _rss_mb() -> float:
@@ -84,4 +98,4 @@ def _rss_mb() -> float:
 
 
 if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
+    main(api.script_args(sys.argv))

@@ -1,8 +1,5 @@
-"""Render the synthetic subject: the built-in head (with teeth) along a known trajectory.
-
-    .venv/bin/python operators/synthetic_subject.py --out DIR [--frames 300] [--size 256]
-                                                    [--samples 16] [--seed 0] [--fps 25]
-    blender -b --python operators/synthetic_subject.py -- --out DIR ...
+"""Render the synthetic subject: the built-in head (with teeth) along a known trajectory
+(the command line is scripts/synthetic_subject.py).
 
 Writes (folder layout of `archhead_addon.synthetic`, docs/formats.md "Synthetic subject"):
 
@@ -18,7 +15,6 @@ into the same DIR replaces the earlier subject. Never imports torch.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import sys
@@ -29,21 +25,13 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE.parent), str(HERE)]  # the core package, the sibling scene pieces
-from head_render import (  # noqa: E402
-    add_head,
-    add_lights,
-    add_opencv_camera,
-    reset_scene,
-    set_vertices,
-)
+from archhead_addon.flame.builtin import builtin_model
+from archhead_addon.flame.lbs import forward
+from archhead_addon.flame.teeth import add_teeth
+from archhead_addon.synthetic.subject import SubjectFolder
+from archhead_addon.synthetic.trajectory import synthetic_sequence
 
-from archhead_addon.flame.builtin import builtin_model  # noqa: E402
-from archhead_addon.flame.lbs import forward  # noqa: E402
-from archhead_addon.flame.teeth import add_teeth  # noqa: E402
-from archhead_addon.synthetic.subject import SubjectFolder  # noqa: E402
-from archhead_addon.synthetic.trajectory import synthetic_sequence  # noqa: E402
+from .head_render import add_head, add_lights, add_opencv_camera, reset_scene, set_vertices
 
 DEFAULT_SAMPLES = 16  # denoised: 45 dB PSNR against a 128-sample render
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
@@ -81,14 +69,22 @@ def _quiet_stdout():
         os.close(saved)
 
 
-def render_subject(out, frames: int = 300, size: int = 256, samples: int = DEFAULT_SAMPLES,
-                   seed: int = 0, fps: float = 25.0, threads: int = 0,
-                   verbose: bool = True) -> SubjectFolder:
+def render_subject(
+    out,
+    frames: int = 300,
+    size: int = 256,
+    samples: int = DEFAULT_SAMPLES,
+    seed: int = 0,
+    fps: float = 25.0,
+    threads: int = 0,
+    verbose: bool = True,
+) -> SubjectFolder:
     """Render the subject into `out` (progress and a summary on stdout); returns its folder."""
     start = time.perf_counter()
     model = add_teeth(builtin_model())
-    seq = synthetic_sequence(frames, size, seed=seed, fps=fps, n_shape=model.n_shape,
-                             n_expr=model.n_expr)
+    seq = synthetic_sequence(
+        frames, size, seed=seed, fps=fps, n_shape=model.n_shape, n_expr=model.n_expr
+    )
     folder = SubjectFolder(out)
     folder.prepare()
     folder.write_tracking(seq)
@@ -116,24 +112,3 @@ def render_subject(out, frames: int = 300, size: int = 256, samples: int = DEFAU
     if verbose:
         print(folder.summary(frames, size, samples, time.perf_counter() - start))
     return folder
-
-
-def main(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--size", type=int, default=256, help="square image size in pixels")
-    parser.add_argument("--samples", type=int, default=DEFAULT_SAMPLES,
-                        help="Cycles samples per pixel (denoised above 4)")
-    parser.add_argument("--seed", type=int, default=0, help="trajectory seed")
-    parser.add_argument("--fps", type=float, default=25.0)
-    parser.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
-    args = parser.parse_args(argv)
-    if args.frames < 1 or args.size < 8 or args.samples < 1:
-        parser.error("--frames and --samples must be positive and --size at least 8")
-    render_subject(args.out, args.frames, args.size, args.samples, args.seed, args.fps,
-                   args.threads)
-
-
-if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])

@@ -1,7 +1,7 @@
 """Render frames of a .blend with ArchHead avatars, without the UI.
 
-    blender -b scene.blend --python operators/script_batch.py -- --frames 1-20 --out DIR
-    python operators/script_batch.py scene.blend --frames 1-20 --out DIR     (the bpy module)
+    blender -b scene.blend --python scripts/batch_render.py -- --frames 1-20 --out DIR
+    python scripts/batch_render.py scene.blend --frames 1-20 --out DIR     (the bpy module)
 
 Options: --lod L fixes every avatar's level of detail (else its keys or driver decide);
 --exact renders the Gaussians with the splat kernel instead of the scene's engine (RGBA PNG);
@@ -14,20 +14,21 @@ so a farm manager can split a job by ranges (docs/blender_avatar.md has the reci
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from pathlib import Path
 
 import bpy
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_import import enable_addon  # noqa: E402  (a sibling script, not a package module)
+from archhead_blender import api
 
 
 def main(argv: list[str]) -> list[Path]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("blend", nargs="?", help=".blend to open (the bpy module; `blender -b "
-                                                 "FILE` has opened it already)")
+    parser.add_argument(
+        "blend",
+        nargs="?",
+        help=".blend to open (the bpy module; `blender -b FILE` has opened it already)",
+    )
     parser.add_argument("--frames", required=True, help="e.g. 1-20, 1-20:5 or 3,7,9")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--lod", type=float, default=None)
@@ -40,16 +41,14 @@ def main(argv: list[str]) -> list[Path]:
     if args.decode_only and not args.cache_dir:
         parser.error("--decode-only needs --cache-dir")
 
-    module = enable_addon()
+    api.enable_addon()
     if args.blend:
         bpy.ops.wm.open_mainfile(filepath=str(Path(args.blend).resolve()))
-    batch = importlib.import_module(f"{module}.operators.batch_render")
-    frames = importlib.import_module(f"{module}.archhead_addon.avatar.frame_selection")
     scene = bpy.context.scene
-    if not batch.scene_avatars(scene):
+    if not api.scene_avatars(scene):
         raise SystemExit("the scene has no ArchHead avatar")
     if args.cache_dir:
-        for obj in batch.scene_avatars(scene):
+        for obj in api.scene_avatars(scene):
             obj.archhead_avatar.cache_dir = str(Path(args.cache_dir).resolve())
             obj.archhead_avatar.disk_cache = True
     if args.engine:
@@ -59,12 +58,18 @@ def main(argv: list[str]) -> list[Path]:
             scene.cycles.samples = args.samples
         else:
             scene.eevee.taa_render_samples = args.samples
-    written = batch.render_frames(bpy.context, frames.parse_frames(args.frames), args.out,
-                                  lod=args.lod, exact=args.exact, decode_only=args.decode_only)
+    written = api.render_frames(
+        bpy.context,
+        api.parse_frames(args.frames),
+        args.out,
+        lod=args.lod,
+        exact=args.exact,
+        decode_only=args.decode_only,
+    )
     for path in written:
         print(f"wrote {path}")
     return written
 
 
 if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
+    main(api.script_args(sys.argv))

@@ -1,7 +1,7 @@
 """The demo: everything on the built-in head, from a synthetic subject to a rendered clip.
 
-    python operators/script_demo.py [--out DIR] [--checkpoint AVATAR.npz]   (the bpy module)
-    blender -b --python operators/script_demo.py -- [--out DIR] [--checkpoint AVATAR.npz]
+    python scripts/demo.py [--out DIR] [--checkpoint AVATAR.npz]           (the bpy module)
+    blender -b --python scripts/demo.py -- [--out DIR] [--checkpoint AVATAR.npz]
     python -m archhead_addon demo [...]                                     (the same)
 
 Without --checkpoint it renders a small synthetic subject (Cycles) and trains a short avatar on
@@ -16,26 +16,15 @@ and how long each step took.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import subprocess
 import sys
-import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import bpy
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-REPO_ROOT = HERE.parent
-sys.path[:0] = [str(REPO_ROOT), str(HERE)]
-from script_import import enable_addon  # noqa: E402  (a sibling script, not a package module)
-
-from archhead_addon.backend_process import python_with_torch, train_command  # noqa: E402
-from archhead_addon.flame import load_model  # noqa: E402
-from archhead_addon.sequences import write_canonical  # noqa: E402
-from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
+from archhead_blender import api
 
 SHEET_LODS = (0.0, 0.25, 0.5, 0.75, 1.0)
 # White, the training background (train/dataset.py): an avatar learns its thin parts over it
@@ -44,37 +33,25 @@ NEAR, FAR = 0.5, 2.0  # camera distances (m) the driver maps to LOD 0 and LOD 1
 DOLLY_FROM, DOLLY_TO = 2.4, 0.45  # the camera's distance at the first and last frame
 
 
-class Steps:
-    """Wall-clock seconds per named step, in order."""
-
-    def __init__(self):
-        self.seconds: dict[str, float] = {}
-
-    @contextmanager
-    def __call__(self, name: str):
-        start = time.perf_counter()
-        print(f"demo: {name} ...", flush=True)
-        yield
-        self.seconds[name] = time.perf_counter() - start
-        print(f"demo: {name} {self.seconds[name]:.1f} s", flush=True)
+REPO_ROOT = Path(__file__).resolve().parents[1]  # the checkout this script belongs to
 
 
 def backend_python() -> str:
     """This Python when it has torch (the bpy module in the project's environment), else the
     project's .venv (Blender's own Python has no torch)."""
-    return python_with_torch() or str(REPO_ROOT / ".venv" / "bin" / "python")
+    return api.python_with_torch() or str(REPO_ROOT / ".venv" / "bin" / "python")
 
 
 def train_avatar(data: Path, out: Path, config: str) -> Path:
-    command = train_command(backend_python(), data, out, config)
+    command = api.train_command(backend_python(), data, out, config)
     print("demo: " + " ".join(command), flush=True)
-    log = out.parent / "train.log"
+    log = api.RunFolder(out.parent).log
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "w") as stream:
         status = subprocess.run(command, cwd=REPO_ROOT, stdout=stream, stderr=subprocess.STDOUT)
     if status.returncode != 0:
         raise SystemExit(f"training failed (status {status.returncode}); see {log}")
-    return out / "avatar.npz"
+    return api.RunFolder(out).avatar
 
 
 def dolly_camera(scene, tracked, target: np.ndarray, frames: range):
@@ -101,7 +78,7 @@ def composite(path: Path) -> np.ndarray:
     return np.round(255 * rgb).astype(np.uint8)
 
 
-def contact_sheet(context, batch, runtime, frame: int, folder: Path, sheet: Path) -> list:
+def contact_sheet(context, runtime, frame: int, folder: Path, sheet: Path) -> list:
     """The avatar at SHEET_LODS from the scene camera at `frame`, side by side, labelled with
     the level of detail, the UV resolution S and the Gaussian count, cropped to the head;
     returns [(l, S, Gaussians)]."""
@@ -109,8 +86,9 @@ def contact_sheet(context, batch, runtime, frame: int, folder: Path, sheet: Path
 
     tiles, alpha = [], []
     for lod in SHEET_LODS:
-        path = batch.render_frames(context, [frame], folder / f"lod_{lod:.2f}", lod=lod,
-                                   exact=True)[0]
+        path = api.render_frames(context, [frame], folder / f"lod_{lod:.2f}", lod=lod, exact=True)[
+            0
+        ]
         tiles.append(composite(path))
         alpha.append(np.asarray(Image.open(path).convert("RGBA"))[..., 3])
     rows, cols = np.nonzero(np.max(alpha, axis=0) > 8)
@@ -123,13 +101,14 @@ def contact_sheet(context, batch, runtime, frame: int, folder: Path, sheet: Path
     out = Image.new("RGB", (width * len(crops), height + label), (255, 255, 255))
     # a grey rule between tiles, since the background is white too
     draw = ImageDraw.Draw(out)
-    levels = [(lod, runtime.resolution(lod), runtime.raster.table(runtime.resolution(lod)).count)
-              for lod in SHEET_LODS]
+    levels = [
+        (lod, runtime.resolution(lod), runtime.raster.table(runtime.resolution(lod)).count)
+        for lod in SHEET_LODS
+    ]
     for i, ((lod, size, count), crop) in enumerate(zip(levels, crops, strict=True)):
         out.paste(crop, (i * width, label))
         draw.line([(i * width, 0), (i * width, out.height)], fill=(200, 200, 200))
-        draw.text((i * width + 3, 1), f"LOD {lod:g}, S {size}\n{count:,} Gaussians",
-                  fill=(0, 0, 0))
+        draw.text((i * width + 3, 1), f"LOD {lod:g}, S {size}\n{count:,} Gaussians", fill=(0, 0, 0))
     sheet.parent.mkdir(parents=True, exist_ok=True)
     out.save(sheet)
     return levels
@@ -139,36 +118,38 @@ def write_gif(frames: list[Path], path: Path, fps: float) -> None:
     from PIL import Image
 
     images = [Image.fromarray(composite(p)) for p in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps),
-                   loop=0)
+    images[0].save(
+        path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0
+    )
 
 
 def run(args) -> dict:
     """The whole demo; returns {what: path} and the step times."""
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    steps = Steps()
+    steps = api.Steps("demo")
     with steps("built-in head"):
-        model = load_model()
-        print(f"demo: built-in head {model.model_id}: {model.n_verts:,} vertices, "
-              f"{len(model.faces):,} faces, {model.n_shape} shape and {model.n_expr} "
-              "expression components")
+        model = api.load_model()
+        print(
+            f"demo: built-in head {model.model_id}: {model.n_verts:,} vertices, "
+            f"{len(model.faces):,} faces, {model.n_shape} shape and {model.n_expr} "
+            "expression components"
+        )
     if args.checkpoint:
         checkpoint = Path(args.checkpoint).resolve()
     else:
-        from synthetic_subject import render_subject
-
         with steps("synthetic subject"):
-            render_subject(out / "subject", args.subject_frames, args.subject_size,
-                           args.subject_samples, verbose=False)
+            api.render_subject(
+                out / "subject",
+                args.subject_frames,
+                args.subject_size,
+                args.subject_samples,
+                verbose=False,
+            )
         with steps("training"):
             checkpoint = train_avatar(out / "subject", out / "train", args.train_config)
 
-    addon = enable_addon()
-
-    def ops(name: str):
-        return importlib.import_module(f"{addon}.operators.{name}")
-
+    api.enable_addon()
     bpy.ops.wm.read_homefile(use_empty=True)
     context, scene = bpy.context, bpy.context.scene
     with steps("import"):
@@ -176,52 +157,58 @@ def run(args) -> dict:
             sequence = Path(args.sequence).resolve()
         else:
             sequence = out / "demo.npz"
-            write_canonical(demo_sequence(frames=args.frames), sequence)
-        result = bpy.ops.archhead.import_sequence(filepath=str(sequence),
-                                                  frame_end=args.frames - 1)
+            api.write_canonical(api.demo_sequence(frames=args.frames), sequence)
+        result = bpy.ops.archhead.import_sequence(filepath=str(sequence), frame_end=args.frames - 1)
         if result != {"FINISHED"}:
             raise SystemExit(f"import failed: {result}")
         render = scene.render  # the longer side to --size, the camera's aspect kept
         scale = args.size / max(render.resolution_x, render.resolution_y)
-        render.resolution_x, render.resolution_y = (round(scale * render.resolution_x),
-                                                    round(scale * render.resolution_y))
+        render.resolution_x, render.resolution_y = (
+            round(scale * render.resolution_x),
+            round(scale * render.resolution_y),
+        )
     head = bpy.data.objects[sequence.stem]
     with steps("load avatar"):
         context.view_layer.objects.active = head
         if bpy.ops.archhead.load_avatar(filepath=str(checkpoint)) != {"FINISHED"}:
             raise SystemExit(f"could not load {checkpoint}")
     avatar = bpy.data.objects[f"{head.name}_avatar"]
-    runtime = ops("avatar_session").session(avatar).runtime
+    runtime = api.session(avatar).runtime
     frames = range(scene.frame_start, scene.frame_end + 1)
     sheet = Path(args.sheet).resolve() if args.sheet else out / "contact_sheet.png"
     with steps("contact sheet"):
-        levels = contact_sheet(context, ops("batch_render"), runtime, frames.start,
-                               out / "sheet", sheet)
+        levels = contact_sheet(context, runtime, frames.start, out / "sheet", sheet)
 
     target = np.array(head.matrix_world) @ np.append(
-        np.mean([np.array(v) for v in head.bound_box], axis=0), 1)
+        np.mean([np.array(v) for v in head.bound_box], axis=0), 1
+    )
     dolly = dolly_camera(scene, scene.camera, target[:3], frames)
-    ops("lod").drive_lod_by_distance(avatar, dolly, NEAR, FAR)
+    api.drive_lod_by_distance(avatar, dolly, NEAR, FAR)
     avatar.archhead_avatar.decode_frames = "ALL"
     with steps("decode"):
-        decoded = ops("avatar_decode").decode_frames(context, avatar)
+        decoded = api.decode_frames(context, avatar)
     with steps("render clip"):
-        clip = ops("batch_render").render_frames(
-            context, list(frames), out / "clip", exact=True)
+        clip = api.render_frames(context, list(frames), out / "clip", exact=True)
         write_gif(clip, out / "clip.gif", scene.render.fps)
     driven = {}
     for frame in (frames.start, frames.stop - 1):
         scene.frame_set(frame)
-        driven[frame] = ops("scene_state").avatar_lod(avatar, context.evaluated_depsgraph_get())
+        driven[frame] = api.avatar_lod(avatar, context.evaluated_depsgraph_get())
     blend = out / "demo.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    summary = {"blend": str(blend), "contact_sheet": str(sheet), "clip": str(out / "clip"),
-               "gif": str(out / "clip.gif"), "checkpoint": str(checkpoint),
-               "frames": len(clip), "decoded": decoded, "sheet_levels": levels,
-               "driven_lod": {"first frame": driven[frames.start],
-                              "last frame": driven[frames.stop - 1]},
-               "seconds": steps.seconds,
-               "total_seconds": sum(steps.seconds.values())}
+    summary = {
+        "blend": str(blend),
+        "contact_sheet": str(sheet),
+        "clip": str(out / "clip"),
+        "gif": str(out / "clip.gif"),
+        "checkpoint": str(checkpoint),
+        "frames": len(clip),
+        "decoded": decoded,
+        "sheet_levels": levels,
+        "driven_lod": {"first frame": driven[frames.start], "last frame": driven[frames.stop - 1]},
+        "seconds": steps.seconds,
+        "total_seconds": sum(steps.seconds.values()),
+    }
     (out / "demo_summary.json").write_text(json.dumps(summary, indent=2))
     print(f"\ndemo done in {summary['total_seconds']:.0f} s")
     for name in ("blend", "contact_sheet", "clip", "gif", "checkpoint"):
@@ -233,20 +220,23 @@ def run(args) -> dict:
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    parser.add_argument("--checkpoint", help="a trained avatar of the built-in model "
-                        "(default: train a short one)")
-    parser.add_argument("--sequence", help="tracked sequence to import (default: the built-in "
-                        "talking head)")
+    parser.add_argument(
+        "--checkpoint", help="a trained avatar of the built-in model (default: train a short one)"
+    )
+    parser.add_argument(
+        "--sequence", help="tracked sequence to import (default: the built-in talking head)"
+    )
     parser.add_argument("--frames", type=int, default=60, help="clip length")
     parser.add_argument("--size", type=int, default=256, help="clip and sheet size in pixels")
     parser.add_argument("--sheet", help="contact sheet path (default: OUT/contact_sheet.png)")
     parser.add_argument("--subject-frames", type=int, default=40)
     parser.add_argument("--subject-size", type=int, default=96)
     parser.add_argument("--subject-samples", type=int, default=8)
-    parser.add_argument("--train-config", default="demo",
-                        help="training config file or preset (default: demo)")
+    parser.add_argument(
+        "--train-config", default="demo", help="training config file or preset (default: demo)"
+    )
     return parser.parse_args(argv)
 
 
 if __name__ == "__main__":
-    run(parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]))
+    run(parse_args(api.script_args(sys.argv)))

@@ -2,7 +2,7 @@
 with Blender's engine (EEVEE or Cycles, through the handlers) or "exact splat" (the
 Gaussians the avatars show, rendered by the splat kernel from the scene camera).
 
-`operators/script_batch.py` is the command line around `render_frames`.
+`scripts/batch_render.py` is the command line around `render_frames`.
 """
 
 from __future__ import annotations
@@ -13,15 +13,17 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..archhead_addon.avatar.frame_selection import contiguous_runs
-from ..archhead_addon.camera import BlenderCamera
-from ..archhead_addon.export.transform import transform_gaussians
-from ..archhead_addon.io.atomic import write_bytes_atomic
-from ..archhead_addon.splat.blender_render import render_from_blender_camera
-from ..archhead_addon.synthetic.png import encode_png
-from .avatar_decode import decode_frames
+from archhead_addon.avatar.decode_cache import SplatFrame
+from archhead_addon.avatar.frame_selection import contiguous_runs
+from archhead_addon.camera import BlenderCamera
+from archhead_addon.export.transform import transform_frame
+from archhead_addon.io.atomic import write_bytes_atomic
+from archhead_addon.splat.blender_render import render_frame_from_blender_camera
+from archhead_addon.synthetic.png import encode_png
+
 from .avatar_props import is_avatar
 from .avatar_session import session
+from .decoding import decode_frames
 from .handlers import frame_to_show
 
 
@@ -35,11 +37,18 @@ def blender_camera(scene) -> BlenderCamera:
         raise ValueError("exact splat renders need a perspective scene camera")
     data, r = scene.camera.data, scene.render
     scale = r.resolution_percentage / 100.0
-    return BlenderCamera(lens=data.lens, sensor_width=data.sensor_width, shift_x=data.shift_x,
-                         shift_y=data.shift_y, resolution_x=round(r.resolution_x * scale),
-                         resolution_y=round(r.resolution_y * scale),
-                         pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y,
-                         sensor_fit=data.sensor_fit, sensor_height=data.sensor_height)
+    return BlenderCamera(
+        lens=data.lens,
+        sensor_width=data.sensor_width,
+        shift_x=data.shift_x,
+        shift_y=data.shift_y,
+        resolution_x=round(r.resolution_x * scale),
+        resolution_y=round(r.resolution_y * scale),
+        pixel_aspect_x=r.pixel_aspect_x,
+        pixel_aspect_y=r.pixel_aspect_y,
+        sensor_fit=data.sensor_fit,
+        sensor_height=data.sensor_height,
+    )
 
 
 @contextmanager
@@ -58,8 +67,7 @@ def fixed_lod(avatars, lod: float | None):
 @contextmanager
 def _restored(scene):
     r = scene.render
-    saved = (scene.frame_start, scene.frame_end, scene.frame_step, scene.frame_current,
-             r.filepath)
+    saved = (scene.frame_start, scene.frame_end, scene.frame_step, scene.frame_current, r.filepath)
     try:
         yield
     finally:
@@ -67,8 +75,14 @@ def _restored(scene):
         scene.frame_set(frame)
 
 
-def render_frames(context, frames, out_dir, lod: float | None = None, exact: bool = False,
-                  decode_only: bool = False) -> list[Path]:
+def render_frames(
+    context,
+    frames,
+    out_dir,
+    lod: float | None = None,
+    exact: bool = False,
+    decode_only: bool = False,
+) -> list[Path]:
     """Render `frames` into out_dir/frame_####.<ext>; returns the files written."""
     scene = context.scene
     out_dir = Path(out_dir)
@@ -95,18 +109,17 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
     scene.frame_set(frame)
     depsgraph = context.evaluated_depsgraph_get()
     parts = []
-    for obj in avatars:
+    for obj in avatars:  # every avatar in Blender's world space, then one image of them all
         _, splat = frame_to_show(obj, scene, depsgraph)
-        world = np.array(obj.evaluated_get(depsgraph).matrix_world)
-        means, log_scales, quats, sh = transform_gaussians(world, splat.means, splat.log_scales,
-                                                           splat.quats, splat.sh)
-        parts.append((means, quats, log_scales, splat.opacity_logits, sh))
+        parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
     camera = blender_camera(scene)
-    arrays = [np.concatenate(a) for a in zip(*parts, strict=True)]
-    raster = render_from_blender_camera(
-        *arrays, camera, np.array(scene.camera.evaluated_get(depsgraph).matrix_world),
-        np.eye(4), num_threads=scene.render.threads if scene.render.threads_mode == "FIXED"
-        else 0)
+    raster = render_frame_from_blender_camera(
+        SplatFrame.concatenate(parts),
+        camera,
+        np.array(scene.camera.evaluated_get(depsgraph).matrix_world),
+        np.eye(4),
+        num_threads=scene.render.threads if scene.render.threads_mode == "FIXED" else 0,
+    )
     path = out_dir / f"frame_{frame:04d}.png"
     write_png(path, raster.rgb, raster.alpha)
     return path

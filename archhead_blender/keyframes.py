@@ -38,8 +38,15 @@ class ActionWriter:
     def fcurves(self):
         return self._fcurves if self._fcurves is not None else self.action.fcurves
 
-    def write(self, data_path: str, frames: np.ndarray, values: np.ndarray, index: int = 0,
-              group: str | None = None, interpolation: str = "LINEAR"):
+    def write(
+        self,
+        data_path: str,
+        frames: np.ndarray,
+        values: np.ndarray,
+        index: int = 0,
+        group: str | None = None,
+        interpolation: str = "LINEAR",
+    ):
         """One F-curve with a key at every (frame, value); values (T,)."""
         fcurves = self.fcurves()
         if self._fcurves is None and group:  # classic API takes the group name directly
@@ -56,8 +63,9 @@ class ActionWriter:
         fc.update()
         return fc
 
-    def write_vector(self, data_path: str, frames: np.ndarray, values: np.ndarray,
-                     group: str | None = None):
+    def write_vector(
+        self, data_path: str, frames: np.ndarray, values: np.ndarray, group: str | None = None
+    ):
         """One F-curve per column of values (T,C)."""
         for i in range(values.shape[1]):
             self.write(data_path, frames, values[:, i], index=i, group=group)

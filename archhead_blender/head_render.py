@@ -1,9 +1,7 @@
 """Cycles scene pieces for rendering a FLAME-format head: textured mesh, light rig, cameras.
 
-Shared by the synthetic subject (`operators/synthetic_subject.py`) and the documentation
-renders (`tests/blender/render_builtin_model.py`). A script-side module, not part of the
-registered add-on: it imports the core package as `archhead_addon`, so the scripts put the
-repository root (and this folder) on sys.path first. Never imports torch.
+Shared by the synthetic subject (`synthetic_subject.py`) and the documentation renders
+(`tests/blender/render_builtin_model.py`); no operator uses them. Never imports torch.
 """
 
 from __future__ import annotations
@@ -19,9 +17,11 @@ from archhead_addon.camera import (
 )
 
 # key, fill and rim area lights: position in FLAME space (metres), power (W), size (m)
-LIGHT_RIG = (("key", (0.55, 0.45, 0.7), 20.0, 0.5),
-             ("fill", (-0.7, 0.05, 0.55), 7.0, 0.8),
-             ("rim", (0.1, 0.5, -0.8), 20.0, 0.4))
+LIGHT_RIG = (
+    ("key", (0.55, 0.45, 0.7), 20.0, 0.5),
+    ("fill", (-0.7, 0.05, 0.55), 7.0, 0.8),
+    ("rim", (0.1, 0.5, -0.8), 20.0, 0.4),
+)
 FACE_CENTRE = (0.0, -0.004, 0.02)  # FLAME space; where the lights point
 
 
@@ -88,7 +88,8 @@ def add_head(model, verts: np.ndarray):
     mesh = bpy.data.meshes.new("head")
     mesh.from_pydata(verts.tolist(), [], model.faces.tolist())
     mesh.uv_layers.new(name="UVMap").data.foreach_set(
-        "uv", model.uv[model.uv_faces].astype(np.float32).ravel())
+        "uv", model.uv[model.uv_faces].astype(np.float32).ravel()
+    )
     mesh.shade_smooth()
     image = _image(model.albedo)
     mesh.materials.append(_material("skin", image, roughness=(0.85, 0.5), subsurface=0.15))
@@ -111,8 +112,11 @@ def set_vertices(obj, verts: np.ndarray) -> None:
 def look_at(obj, target) -> None:
     """Point the object's local -Z (cameras, lights) at `target`, +Y up (Blender world)."""
     direction = np.asarray(target) - np.asarray(obj.location)
-    obj.rotation_euler = (np.arctan2(np.hypot(direction[0], direction[1]), -direction[2]), 0,
-                          np.arctan2(direction[1], direction[0]) - np.pi / 2)
+    obj.rotation_euler = (
+        np.arctan2(np.hypot(direction[0], direction[1]), -direction[2]),
+        0,
+        np.arctan2(direction[1], direction[0]) - np.pi / 2,
+    )
 
 
 def flame_point(p) -> list[float]:

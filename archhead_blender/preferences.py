@@ -2,17 +2,16 @@
 
 import bpy
 
-# The extension's package name (bl_ext.<repo>.archhead when installed as an extension).
-ADDON_PACKAGE = __package__.rsplit(".", 1)[0]
-
 
 class ArchHeadPreferences(bpy.types.AddonPreferences):
-    bl_idname = ADDON_PACKAGE
+    # Set by register(): the add-on's module name, which Blender chooses per repository
+    # (bl_ext.<repo>.archhead), so it cannot be spelled here.
+    bl_idname = "archhead"
 
     flame_model_path: bpy.props.StringProperty(
         name="FLAME model",
         description="FLAME 2020 / 2023 generic_model.pkl or a FLAME-format .npz; "
-                    "empty uses the built-in model",
+        "empty uses the built-in model",
         subtype="FILE_PATH",
     )
     backend_python: bpy.props.StringProperty(
@@ -27,5 +26,14 @@ class ArchHeadPreferences(bpy.types.AddonPreferences):
 
 
 def get_preferences(context) -> ArchHeadPreferences | None:
-    addon = context.preferences.addons.get(ADDON_PACKAGE)
+    addon = context.preferences.addons.get(ArchHeadPreferences.bl_idname)
     return addon.preferences if addon else None
+
+
+def register(addon_package: str) -> None:
+    ArchHeadPreferences.bl_idname = addon_package
+    bpy.utils.register_class(ArchHeadPreferences)
+
+
+def unregister() -> None:
+    bpy.utils.unregister_class(ArchHeadPreferences)

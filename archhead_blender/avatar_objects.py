@@ -1,0 +1,111 @@
+"""Avatar objects: which head an object belongs to, its avatar, and attaching a checkpoint to
+an imported head (checks, the point object, scene setup)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from archhead_addon.avatar.checkpoint_format import read_checkpoint
+from archhead_addon.avatar.compat import HeadFacts, check_head
+from archhead_addon.io.errors import InputError
+
+from .avatar_props import is_avatar
+from .avatar_session import base_model, drop_session, flame_model_path
+from .handlers import refresh_avatar
+from .point_instances import create_point_object
+from .scene_state import head_rig
+
+CYCLES_TRANSPARENT_BOUNCES = 256  # rays cross many overlapping Gaussians near silhouettes
+
+
+def head_of(obj):
+    """The imported head for an object: the head, its rig, or one of its avatars."""
+    if obj is None:
+        return None
+    if "archhead_model_id" in obj:
+        return obj
+    if is_avatar(obj):
+        return obj.archhead_avatar.head
+    name = obj.get("archhead_head")
+    return bpy.data.objects.get(name) if name else None
+
+
+def avatar_of(head):
+    """The point object showing this head's avatar, if there is one."""
+    return next(
+        (o for o in bpy.data.objects if is_avatar(o) and o.archhead_avatar.head == head), None
+    )
+
+
+def active_avatar(context):
+    """The avatar point object of the active object's head."""
+    head = head_of(context.active_object)
+    return avatar_of(head) if head is not None else None
+
+
+def head_facts(head) -> HeadFacts:
+    mesh = head.data
+    loop_uvs = None
+    if mesh.uv_layers.active is not None:
+        loop_uvs = np.empty(2 * len(mesh.loops), np.float32)
+        mesh.uv_layers.active.data.foreach_get("uv", loop_uvs)
+        loop_uvs = loop_uvs.reshape(-1, 2).astype(np.float64)
+    return HeadFacts(
+        model_id=str(head.get("archhead_model_id", "")),
+        n_faces=len(mesh.polygons),
+        identity=np.asarray(head.get("archhead_identity", []), np.float64),
+        n_expr=int(head.get("archhead_n_expr", 0)),
+        loop_uvs=loop_uvs,
+    )
+
+
+def load_avatar(context, head, path) -> tuple[bpy.types.Object, list[str]]:
+    """Check the checkpoint against the head, then show it as point instances under the
+    head's rig (a head's existing avatar object is reused). Returns (object, warnings)."""
+    path = Path(path)
+    ckpt = read_checkpoint(path)
+    found = check_head(ckpt, head_facts(head), base_model(flame_model_path(context)).model_id)
+    if found.errors:
+        raise InputError(path, None, "; ".join(found.errors))
+    obj, created = avatar_of(head), None
+    if obj is None:
+        collection = head.users_collection[0] if head.users_collection else context.scene.collection
+        obj = created = create_point_object(f"{head.name}_avatar", head_rig(head), collection)
+    drop_session(obj)  # the same path may hold a new checkpoint (a finished training run)
+    settings = obj.archhead_avatar
+    settings.checkpoint = bpy.path.relpath(str(path)) if bpy.data.filepath else str(path)
+    settings.head = head
+    try:
+        refresh_avatar(obj, context.scene, context.evaluated_depsgraph_get())
+    except BaseException:
+        if created is not None:
+            mesh = created.data
+            bpy.data.objects.remove(created)
+            bpy.data.meshes.remove(mesh)
+        raise
+    _make_room(head, context.scene)
+    return obj, found.warnings
+
+
+def _make_room(head, scene) -> None:
+    """The head mesh stays evaluated (its shape keys drive the avatar) but no longer renders:
+    ray visibility off (EEVEE and Cycles), a wireframe in the viewport."""
+    for flag in (
+        "visible_camera",
+        "visible_diffuse",
+        "visible_glossy",
+        "visible_transmission",
+        "visible_volume_scatter",
+        "visible_shadow",
+    ):
+        setattr(head, flag, False)
+    head.display_type = "WIRE"
+    scene.render.use_lock_interface = True  # the handlers edit the points during renders
+    cycles = getattr(scene, "cycles", None)
+    if cycles is not None:
+        cycles.transparent_max_bounces = max(
+            cycles.transparent_max_bounces, CYCLES_TRANSPARENT_BOUNCES
+        )

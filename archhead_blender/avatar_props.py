@@ -1,0 +1,130 @@
+"""The avatar's settings, stored on its point object (`Object.archhead_avatar`).
+
+`lod` is an ordinary animatable float: keyframes, drivers and the N-panel slider all reach
+it, and the handlers re-decode whenever its evaluated value changes. Settings that change
+what is shown tag the object, so the depsgraph (and with it the handlers) sees the change.
+"""
+
+from __future__ import annotations
+
+import bpy
+
+
+def _tag(self, _context):
+    """A Python-defined property does not tag its object for the depsgraph by itself: without
+    this the evaluated copy (which handlers and renders read) keeps the old value."""
+    self.id_data.update_tag()
+
+
+class ArchHeadAvatarSettings(bpy.types.PropertyGroup):
+    checkpoint: bpy.props.StringProperty(
+        update=_tag,
+        name="Checkpoint",
+        subtype="FILE_PATH",
+        description="The avatar checkpoint (.npz) this object shows",
+    )
+    head: bpy.props.PointerProperty(
+        update=_tag,
+        name="Head",
+        type=bpy.types.Object,
+        description="The imported head whose shape keys and bones drive the avatar",
+    )
+    lod: bpy.props.FloatProperty(
+        update=_tag,
+        name="Level of detail",
+        min=0.0,
+        max=1.0,
+        default=0.0,
+        precision=3,
+        description="0 = most detail (UV resolution 256), 1 = least (64); animatable",
+    )
+    decode_frames: bpy.props.EnumProperty(
+        name="Decode",
+        default="KEYED",
+        items=(
+            (
+                "KEYED",
+                "Keyed frames",
+                "Frames that carry a key of the head, its rig or the "
+                "level of detail, in the scene's range",
+            ),
+            ("ALL", "Every frame", "Every frame of the scene's range"),
+            ("STRIDE", "Every n-th frame", "Every n-th frame of the scene's range"),
+        ),
+    )
+    stride: bpy.props.IntProperty(name="Stride", min=1, default=5)
+    between: bpy.props.EnumProperty(
+        update=_tag,
+        name="Between decoded frames",
+        default="LIVE",
+        items=(
+            (
+                "LIVE",
+                "Decode live",
+                "Decode the codes the scene has at the frame: Blender "
+                "interpolates them between keys",
+            ),
+            ("HOLD", "Hold", "Show the last decoded frame until the next one"),
+        ),
+    )
+    identity: bpy.props.EnumProperty(
+        update=_tag,
+        name="Identity",
+        default="HEAD",
+        items=(
+            (
+                "HEAD",
+                "Head",
+                "The imported head's identity shape (the avatar sits on the head's mesh)",
+            ),
+            (
+                "AVATAR",
+                "Avatar",
+                "The identity the avatar was trained with (reenactment "
+                "with another person's tracking)",
+            ),
+        ),
+    )
+    view_dependent: bpy.props.BoolProperty(
+        update=_tag,
+        name="View-dependent colour",
+        default=False,
+        description="Evaluate the full spherical harmonics towards the scene camera each "
+        "frame (otherwise the view-independent DC colour)",
+    )
+    disk_cache: bpy.props.BoolProperty(
+        update=_tag,
+        name="Cache on disk",
+        default=False,
+        description="Keep decoded frames in a folder next to the .blend (shared by renders "
+        "and render-farm machines)",
+    )
+    cache_dir: bpy.props.StringProperty(
+        update=_tag,
+        name="Cache folder",
+        subtype="DIR_PATH",
+        default="//archhead_cache",
+        description="Folder of the disk cache ('//' is the .blend's folder); files are named "
+        "by avatar, codes and level of detail, so avatars and machines can share it",
+    )
+    memory_mb: bpy.props.IntProperty(
+        update=_tag,
+        name="Memory cache (MB)",
+        min=16,
+        default=1024,
+        description="Decoded frames kept in memory, least recently used dropped first",
+    )
+
+
+def register():
+    bpy.utils.register_class(ArchHeadAvatarSettings)
+    bpy.types.Object.archhead_avatar = bpy.props.PointerProperty(type=ArchHeadAvatarSettings)
+
+
+def unregister():
+    del bpy.types.Object.archhead_avatar
+    bpy.utils.unregister_class(ArchHeadAvatarSettings)
+
+
+def is_avatar(obj) -> bool:
+    return obj is not None and obj.type == "MESH" and bool(obj.archhead_avatar.checkpoint)

@@ -1,0 +1,48 @@
+"""Drive the level of detail by the distance from the scene camera to the head.
+
+The driver is a simple expression (Blender evaluates it without Python, so it runs in files
+whose scripts are not trusted and in background renders): a LOC_DIFF distance `d` between
+the camera and the head's root bone, and `near` / `far` read from custom properties of the
+avatar object, so they can be changed (or animated) without editing the expression.
+"""
+
+from __future__ import annotations
+
+from .scene_state import head_rig
+
+DRIVER_EXPRESSION = "min(max((d - near) / (far - near), 0), 1)"
+NEAR_PROP, FAR_PROP = "archhead_lod_near", "archhead_lod_far"
+LOD_PATH = "archhead_avatar.lod"
+
+
+def drive_lod_by_distance(obj, camera, near: float, far: float):
+    """Replace any animation of the avatar's level of detail with the distance driver."""
+    if not far > near:
+        raise ValueError(f"far ({far}) must be greater than near ({near})")
+    obj[NEAR_PROP], obj[FAR_PROP] = float(near), float(far)
+    for prop in (NEAR_PROP, FAR_PROP):
+        obj.id_properties_ui(prop).update(
+            min=0.0,
+            subtype="DISTANCE",
+            description="Camera distance mapped to LOD 0 (near) or LOD 1 (far)",
+        )
+    obj.driver_remove(LOD_PATH)
+    driver = obj.driver_add(LOD_PATH).driver
+    driver.type = "SCRIPTED"
+    distance = driver.variables.new()
+    distance.name, distance.type = "d", "LOC_DIFF"
+    cam_target, head_target = distance.targets
+    cam_target.id = camera
+    head_target.id = head_rig(obj.archhead_avatar.head)
+    head_target.bone_target = "global"
+    for target in distance.targets:
+        target.transform_space = "WORLD_SPACE"
+    for name, prop in (("near", NEAR_PROP), ("far", FAR_PROP)):
+        var = driver.variables.new()
+        var.name, var.type = name, "SINGLE_PROP"
+        var.targets[0].id_type = "OBJECT"
+        var.targets[0].id = obj
+        var.targets[0].data_path = f'["{prop}"]'
+    driver.expression = DRIVER_EXPRESSION
+    driver.use_self = False
+    return driver

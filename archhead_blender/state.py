@@ -1,0 +1,48 @@
+"""All of the add-on's runtime state in one place: what lives only in this Blender process and
+cannot be stored in the .blend. `reset` is the one way to drop it; the handlers call it on
+file load and the add-on on unregister, so no registry outlives the file it describes.
+
+Every other Blender-side module reads and writes these through `STATE`, never through
+module-level dictionaries of its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass
+class RuntimeState:
+    # FLAME models by file path ("" = built-in): without teeth (avatar sessions), with teeth
+    # (imports). Pure caches of files: kept across file loads, dropped on unregister.
+    base_models: dict[str, Any] = field(default_factory=dict)
+    head_models: dict[str, Any] = field(default_factory=dict)
+    # Point object session_uid -> its AvatarSession, or the settings it failed with and why.
+    sessions: dict[int, Any] = field(default_factory=dict)
+    failures: dict[int, tuple] = field(default_factory=dict)
+    # Point object session_uid -> the last error of its refresh (shown in the N-panel).
+    errors: dict[int, str] = field(default_factory=dict)
+    # Point object session_uid -> {"done", "total", "cancel"} of a modal decode.
+    decode_progress: dict[int, dict] = field(default_factory=dict)
+    # Nesting depth of bulk work that moves frames itself (handlers pause meanwhile).
+    suspended: int = 0
+    # The training run the panel shows (training.TrainingRun), if one is going.
+    training_run: Any = None
+
+
+STATE = RuntimeState()
+
+
+def reset(keep_models: bool = True) -> None:
+    """Forget everything that belongs to the open file. A running training backend is asked
+    to stop (it saves a checkpoint): the modal operator that watched it does not survive a
+    file load or the add-on being disabled. `keep_models=False` (unregister) also drops the
+    model caches."""
+    run = STATE.training_run
+    if run is not None:
+        run.backend.cancel()
+    models = (STATE.base_models, STATE.head_models) if keep_models else ({}, {})
+    fresh = RuntimeState(base_models=models[0], head_models=models[1])
+    for name in RuntimeState.__dataclass_fields__:
+        setattr(STATE, name, getattr(fresh, name))
