@@ -41,23 +41,42 @@ def media():
 @pytest.fixture(scope="module")
 def synthetic_clip(tmp_path_factory):
     folder = tmp_path_factory.mktemp("track") / "synthetic"
-    subprocess.run([sys.executable, str(REPO_ROOT / "operators" / "synthetic_subject.py"),
-                    "--out", str(folder), "--frames", str(SYNTH_FRAMES), "--size",
-                    str(SYNTH_SIZE), "--samples", "4"], check=True, capture_output=True,
-                   timeout=600)
+    subprocess.run(
+        [
+            sys.executable,
+            str(REPO_ROOT / "scripts" / "synthetic_subject.py"),
+            "--out",
+            str(folder),
+            "--frames",
+            str(SYNTH_FRAMES),
+            "--size",
+            str(SYNTH_SIZE),
+            "--samples",
+            "4",
+        ],
+        check=True,
+        capture_output=True,
+        timeout=600,
+    )
     return folder
 
 
 def test_vertex_subset_poses_its_vertices_exactly(model):
     rng = np.random.default_rng(0)
     ids = rng.choice(model.n_verts, 200, replace=False)
-    codes = {"shape": rng.normal(size=(2, 300)), "expr": rng.normal(size=(2, 100)),
-             "jaw": 0.3 * rng.normal(size=(2, 3)), "neck": 0.3 * rng.normal(size=(2, 3)),
-             "eyes": 0.3 * rng.normal(size=(2, 6)), "rotation": rng.normal(size=(2, 3)),
-             "translation": rng.normal(size=(2, 3))}
+    codes = {
+        "shape": rng.normal(size=(2, 300)),
+        "expr": rng.normal(size=(2, 100)),
+        "jaw": 0.3 * rng.normal(size=(2, 3)),
+        "neck": 0.3 * rng.normal(size=(2, 3)),
+        "eyes": 0.3 * rng.normal(size=(2, 6)),
+        "rotation": rng.normal(size=(2, 3)),
+        "translation": rng.normal(size=(2, 3)),
+    }
     full = forward(model, **codes)[:, ids]
-    np.testing.assert_allclose(forward(vertex_subset(model, ids), **codes)[:, :200], full,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        forward(vertex_subset(model, ids), **codes)[:, :200], full, atol=1e-12
+    )
 
 
 def test_embedding_places_landmarks_on_the_builtin_head(model, tmp_path):
@@ -74,11 +93,14 @@ def test_embedding_places_landmarks_on_the_builtin_head(model, tmp_path):
     np.testing.assert_array_equal(again.faces, emb.faces)
 
 
+@pytest.mark.slow
+@pytest.mark.blender  # the clip is rendered with Cycles through bpy
 def test_tracker_recovers_the_codes_of_a_rendered_clip(synthetic_clip, model, tmp_path):
     truth = read_sequence(synthetic_clip / "tracking.npz")
     out = tmp_path / "tracked"
-    report = track(synthetic_clip / "frames", out,
-                   TrackOptions(size=SYNTH_SIZE, focal=float(truth.K[0, 0, 0])))
+    report = track(
+        synthetic_clip / "frames", out, TrackOptions(size=SYNTH_SIZE, focal=float(truth.K[0, 0, 0]))
+    )
     assert report["frames_kept"] == SYNTH_FRAMES and not report["dropped"]
     seq = read_sequence(out / "tracking.npz")
     errors = vertex_errors(model, seq, truth.subset(0, SYNTH_FRAMES))
@@ -92,10 +114,25 @@ def test_tracker_recovers_the_codes_of_a_rendered_clip(synthetic_clip, model, tm
 
 def test_command_line_writes_progress_and_a_folder(media, tmp_path):
     out = tmp_path / "clip"
-    done = subprocess.run([sys.executable, "-m", "archhead_addon", "track",
-                           str(media / "single_face.mp4"), "--out", str(out), "--frames", "12",
-                           "--size", "128", "--progress-json"],
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "archhead_addon",
+            "track",
+            str(media / "single_face.mp4"),
+            "--out",
+            str(out),
+            "--frames",
+            "12",
+            "--size",
+            "128",
+            "--progress-json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     events = [json.loads(line) for line in done.stdout.splitlines()]
     assert events[0]["event"] == "start" and events[-1]["event"] == "done"

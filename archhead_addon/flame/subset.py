@@ -27,7 +27,12 @@ def vertex_subset(model: FlameModel, vertex_ids) -> FlameModel:
         faces=np.zeros((0, 3), np.int64),
         shapedirs=np.concatenate([model.shapedirs[ids], j_dirs]),
         n_shape=model.n_shape,
-        posedirs=np.concatenate([model.posedirs[ids],
-                                 np.zeros((N_JOINTS, *model.posedirs.shape[1:]))]),
-        j_regressor=picker, weights=weights, parents=model.parents,
-        model_id=f"{model.model_id}[{n} vertices]", source=model.source)
+        posedirs=np.concatenate(
+            [model.posedirs[ids], np.zeros((N_JOINTS, *model.posedirs.shape[1:]))]
+        ),
+        j_regressor=picker,
+        weights=weights,
+        parents=model.parents,
+        model_id=f"{model.model_id}[{n} vertices]",
+        source=model.source,
+    )

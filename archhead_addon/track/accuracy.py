@@ -46,8 +46,16 @@ def _similarity(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def _vertices(model, seq: Sequence) -> np.ndarray:
-    return forward(model, shape=seq.shape, expr=seq.expr, jaw=seq.jaw, neck=seq.neck,
-                   eyes=seq.eyes, rotation=seq.rotation, translation=seq.translation)
+    return forward(
+        model,
+        shape=seq.shape,
+        expr=seq.expr,
+        jaw=seq.jaw,
+        neck=seq.neck,
+        eyes=seq.eyes,
+        rotation=seq.rotation,
+        translation=seq.translation,
+    )
 
 
 def vertex_errors(model: FlameModel, tracked: Sequence, truth: Sequence) -> np.ndarray:
@@ -55,8 +63,12 @@ def vertex_errors(model: FlameModel, tracked: Sequence, truth: Sequence) -> np.n
     region = face_region(model)
     pred = _vertices(model, tracked.fit_to_model(model))[:, region]
     true = _vertices(model, truth.fit_to_model(model))[:, region]
-    return np.concatenate([np.linalg.norm(_similarity(p, t) - t, axis=1)
-                           for p, t in zip(pred, true, strict=True)]) * 1000
+    return (
+        np.concatenate(
+            [np.linalg.norm(_similarity(p, t) - t, axis=1) for p, t in zip(pred, true, strict=True)]
+        )
+        * 1000
+    )
 
 
 def head_rotation(seq: Sequence) -> np.ndarray:
@@ -70,26 +82,32 @@ def code_errors(tracked: Sequence, truth: Sequence) -> dict:
     jaw = np.degrees(np.linalg.norm(tracked.jaw - truth.jaw, axis=-1))
     n = min(10, tracked.expr.shape[1], truth.expr.shape[1])
     expr = np.sqrt(((tracked.expr[:, :n] - truth.expr[:, :n]) ** 2).mean(axis=0))
-    return {"head_rotation_deg_median": float(np.median(head)),
-            "jaw_deg_median": float(np.median(jaw)),
-            "expr_rms_first10": [round(float(e), 3) for e in expr]}
+    return {
+        "head_rotation_deg_median": float(np.median(head)),
+        "jaw_deg_median": float(np.median(jaw)),
+        "expr_rms_first10": [round(float(e), 3) for e in expr],
+    }
 
 
 def summarise(errors: np.ndarray) -> dict:
-    return {"median_mm": round(float(np.median(errors)), 3),
-            "p95_mm": round(float(np.percentile(errors, 95)), 3)}
+    return {
+        "median_mm": round(float(np.median(errors)), 3),
+        "p95_mm": round(float(np.percentile(errors, 95)), 3),
+    }
 
 
 def main(argv=None) -> int:
     from .fit import FitOptions, fit_landmarks
     from .pipeline import TrackOptions, track
 
-    parser = argparse.ArgumentParser(prog="python -m archhead_addon.track.accuracy",
-                                     description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m archhead_addon.track.accuracy", description=__doc__.split("\n\n")[0]
+    )
     parser.add_argument("--data", required=True, help="a synthetic subject folder")
     parser.add_argument("--frames", type=int)
-    parser.add_argument("--known-focal", action="store_true",
-                        help="give the tracker the true focal length")
+    parser.add_argument(
+        "--known-focal", action="store_true", help="give the tracker the true focal length"
+    )
     args = parser.parse_args(argv)
     model = load_model(None)
     truth = read_sequence(f"{args.data}/tracking.npz")
@@ -98,32 +116,67 @@ def main(argv=None) -> int:
     size = truth.image_size
     focal = float(truth.K[0, 0, 0]) if args.known_focal else None
     with tempfile.TemporaryDirectory() as tmp:
-        report = track(f"{args.data}/frames", f"{tmp}/out",
-                       TrackOptions(size=max(size), max_frames=n, focal=focal))
+        report = track(
+            f"{args.data}/frames",
+            f"{tmp}/out",
+            TrackOptions(size=max(size), max_frames=n, focal=focal),
+        )
         tracked = read_sequence(f"{tmp}/out/tracking.npz")
     kept = np.isin(truth.frame_ids, tracked.frame_ids)
-    truth_kept = replace(truth, **{k: getattr(truth, k)[kept] for k in (
-        "shape", "expr", "jaw", "neck", "eyes", "rotation", "translation", "K", "w2c",
-        "frame_ids")})
+    truth_kept = replace(
+        truth,
+        **{
+            k: getattr(truth, k)[kept]
+            for k in (
+                "shape",
+                "expr",
+                "jaw",
+                "neck",
+                "eyes",
+                "rotation",
+                "translation",
+                "K",
+                "w2c",
+                "frame_ids",
+            )
+        },
+    )
     # Perfect landmarks: the truth's own landmark points projected by its camera.
     emb = landmark_embedding(model)
     points = emb.points(_vertices(model, truth_kept), model.faces)
     cam = points @ truth.w2c[0, :3, :3].T + truth.w2c[0, :3, 3]
     perfect = (cam @ truth.K[0].T)[..., :2] / cam[..., 2:]
-    fit = fit_landmarks(model, emb, perfect, truth_kept.frame_ids, truth.fps, size,
-                        FitOptions(focal=focal or float(truth.K[0, 0, 0])))
+    fit = fit_landmarks(
+        model,
+        emb,
+        perfect,
+        truth_kept.frame_ids,
+        truth.fps,
+        size,
+        FitOptions(focal=focal or float(truth.K[0, 0, 0])),
+    )
     c = fit.codes
-    perfect_seq = Sequence(shape=np.tile(c["shape"], (len(perfect), 1)), expr=c["expr"],
-                           jaw=c["jaw"], neck=c["neck"], eyes=c["eyes"],
-                           rotation=c["rotation"], translation=c["translation"], fps=truth.fps,
-                           frame_ids=truth_kept.frame_ids, source="perfect", format="fit")
+    perfect_seq = Sequence(
+        shape=np.tile(c["shape"], (len(perfect), 1)),
+        expr=c["expr"],
+        jaw=c["jaw"],
+        neck=c["neck"],
+        eyes=c["eyes"],
+        rotation=c["rotation"],
+        translation=c["translation"],
+        fps=truth.fps,
+        frame_ids=truth_kept.frame_ids,
+        source="perfect",
+        format="fit",
+    )
     result = {
-        "frames": int(kept.sum()), "known_focal": args.known_focal,
-        "focal_px": report["focal_px_source"], "true_focal_px": float(truth.K[0, 0, 0]),
+        "frames": int(kept.sum()),
+        "known_focal": args.known_focal,
+        "focal_px": report["focal_px_source"],
+        "true_focal_px": float(truth.K[0, 0, 0]),
         "vertex_error": summarise(vertex_errors(model, tracked, truth_kept)),
         "codes": code_errors(tracked, truth_kept),
-        "perfect_landmarks_vertex_error": summarise(vertex_errors(model, perfect_seq,
-                                                                  truth_kept)),
+        "perfect_landmarks_vertex_error": summarise(vertex_errors(model, perfect_seq, truth_kept)),
         "landmark_residual_px": report["residual_px"],
         "seconds_per_frame": report["seconds_per_frame"],
     }

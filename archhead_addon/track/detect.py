@@ -15,9 +15,11 @@ import numpy as np
 
 N_LANDMARKS = 478
 MEDIAPIPE_VERSION = "0.10.21"
-_MODELS = ("modules/face_landmark/face_landmark_with_attention.tflite",
-           "modules/face_detection/face_detection_short_range.tflite",
-           "modules/selfie_segmentation/selfie_segmentation.tflite")
+_MODELS = (
+    "modules/face_landmark/face_landmark_with_attention.tflite",
+    "modules/face_detection/face_detection_short_range.tflite",
+    "modules/selfie_segmentation/selfie_segmentation.tflite",
+)
 
 
 class TrackerUnavailable(RuntimeError):
@@ -27,14 +29,17 @@ class TrackerUnavailable(RuntimeError):
 def _check_mediapipe() -> None:
     spec = importlib.util.find_spec("mediapipe")
     if spec is None or spec.origin is None:
-        raise TrackerUnavailable(f"the tracker needs mediapipe=={MEDIAPIPE_VERSION} "
-                                 "(installed by `make setup`)")
+        raise TrackerUnavailable(
+            f"the tracker needs mediapipe=={MEDIAPIPE_VERSION} (installed by `make setup`)"
+        )
     root = Path(spec.origin).parent
     missing = [m for m in _MODELS if not (root / m).is_file()]
     if missing:
-        raise TrackerUnavailable(f"mediapipe at {root} lacks its bundled models ({missing[0]}); "
-                                 f"install mediapipe=={MEDIAPIPE_VERSION}, whose wheel carries "
-                                 "them (later versions download models at run time)")
+        raise TrackerUnavailable(
+            f"mediapipe at {root} lacks its bundled models ({missing[0]}); "
+            f"install mediapipe=={MEDIAPIPE_VERSION}, whose wheel carries "
+            "them (later versions download models at run time)"
+        )
 
 
 @dataclass
@@ -51,11 +56,14 @@ class FaceDetector:
         _check_mediapipe()
         from mediapipe.python.solutions import face_mesh, selfie_segmentation
 
-        self._mesh = face_mesh.FaceMesh(static_image_mode=not video, max_num_faces=max_faces,
-                                        refine_landmarks=True, min_detection_confidence=0.5,
-                                        min_tracking_confidence=0.5)
-        self._segment = selfie_segmentation.SelfieSegmentation(model_selection=0) if masks \
-            else None
+        self._mesh = face_mesh.FaceMesh(
+            static_image_mode=not video,
+            max_num_faces=max_faces,
+            refine_landmarks=True,
+            min_detection_confidence=0.5,
+            min_tracking_confidence=0.5,
+        )
+        self._segment = selfie_segmentation.SelfieSegmentation(model_selection=0) if masks else None
 
     def __call__(self, rgb: np.ndarray) -> Detection:
         rgb = np.ascontiguousarray(rgb)
@@ -65,8 +73,9 @@ class FaceDetector:
         landmarks = None
         if faces:
             # MediaPipe's normalised coordinates put pixel centres at +0.5 (x * width).
-            all_faces = [np.array([(p.x * width, p.y * height) for p in face.landmark])
-                         for face in faces]
+            all_faces = [
+                np.array([(p.x * width, p.y * height) for p in face.landmark]) for face in faces
+            ]
             landmarks = max(all_faces, key=lambda lm: np.ptp(lm[:, 0]) * np.ptp(lm[:, 1]))
         mask = None
         if self._segment is not None:

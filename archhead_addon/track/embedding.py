@@ -68,12 +68,12 @@ def landmark_embedding(model: FlameModel, cache=None) -> LandmarkEmbedding:
             if emb.faces.shape == (N_LANDMARKS,) and np.isfinite(emb.bary).all():
                 return emb
         except (OSError, ValueError, KeyError) as exc:
-            warnings.warn(f"{path}: unreadable landmark cache ({exc}); deriving it again",
-                          stacklevel=2)
+            warnings.warn(
+                f"{path}: unreadable landmark cache ({exc}); deriving it again", stacklevel=2
+            )
     emb = derive_embedding(model)
     path.parent.mkdir(parents=True, exist_ok=True)
-    save_npz_atomic(path, faces=emb.faces, bary=emb.bary, weight=emb.weight,
-                    spread=emb.spread)
+    save_npz_atomic(path, faces=emb.faces, bary=emb.bary, weight=emb.weight, spread=emb.spread)
     return emb
 
 
@@ -126,8 +126,10 @@ def derive_embedding(model: FlameModel) -> LandmarkEmbedding:
                 if b is not None:
                     found[v, i], tri[v, i], bary[v, i] = True, face, b
     if found.any(axis=1).sum() < MIN_VIEWS:
-        raise RuntimeError(f"{model.source}: Face Mesh found the model's face in fewer than "
-                           f"{MIN_VIEWS} of {len(VIEW_YAWS)} renders; cannot place landmarks")
+        raise RuntimeError(
+            f"{model.source}: Face Mesh found the model's face in fewer than "
+            f"{MIN_VIEWS} of {len(VIEW_YAWS)} renders; cannot place landmarks"
+        )
     points = np.einsum("vlkc,vlk->vlc", verts[faces[tri]], bary)  # (views,478,3)
     out_faces = np.zeros(N_LANDMARKS, np.int64)
     out_bary = np.full((N_LANDMARKS, 3), 1 / 3)

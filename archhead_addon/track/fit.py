@@ -37,10 +37,19 @@ class FitOptions:
     rigid_steps: int = 120
     full_steps: int = 400
     delta: float = 0.008  # Charbonnier knee, in face sizes (about 2 px on a 250 px face)
-    weights: dict = field(default_factory=lambda: {
-        "shape": 3e-5, "expr": 3e-5, "jaw": 1e-3, "eyes": 1e-4, "focal": 1e-3,
-        "smooth_expr": 3e-4, "smooth_pose": 3e-2, "smooth_translation": 3.0,
-        "smooth_eyes": 3e-4})
+    weights: dict = field(
+        default_factory=lambda: {
+            "shape": 3e-5,
+            "expr": 3e-5,
+            "jaw": 1e-3,
+            "eyes": 1e-4,
+            "focal": 1e-3,
+            "smooth_expr": 3e-4,
+            "smooth_pose": 3e-2,
+            "smooth_translation": 3.0,
+            "smooth_eyes": 3e-4,
+        }
+    )
 
 
 @dataclass
@@ -63,9 +72,16 @@ def fixed_camera(focal: float, size: tuple[int, int]) -> tuple[np.ndarray, np.nd
     return K, w2c
 
 
-def fit_landmarks(model: FlameModel, emb: LandmarkEmbedding, landmarks: np.ndarray,
-                  frame_ids: np.ndarray, fps: float, size: tuple[int, int],
-                  options: FitOptions | None = None, progress=None) -> FitResult:
+def fit_landmarks(
+    model: FlameModel,
+    emb: LandmarkEmbedding,
+    landmarks: np.ndarray,
+    frame_ids: np.ndarray,
+    fps: float,
+    size: tuple[int, int],
+    options: FitOptions | None = None,
+    progress=None,
+) -> FitResult:
     """Fit `landmarks` (T,478,2) pixels of frames `frame_ids` (size (H, W))."""
     import torch
 
@@ -85,8 +101,9 @@ def fit_landmarks(model: FlameModel, emb: LandmarkEmbedding, landmarks: np.ndarr
     weight = torch.from_numpy(emb.weight.astype(np.float32))
     height, width = size
 
-    span_px = np.median(np.linalg.norm(landmarks[:, SPAN_LANDMARKS[0]]
-                                       - landmarks[:, SPAN_LANDMARKS[1]], axis=-1))
+    span_px = np.median(
+        np.linalg.norm(landmarks[:, SPAN_LANDMARKS[0]] - landmarks[:, SPAN_LANDMARKS[1]], axis=-1)
+    )
     scale = float(max(span_px, 1.0))  # pixels per face size
     neutral = emb.points(model.v_template, model.faces)
     span_m = float(np.linalg.norm(neutral[SPAN_LANDMARKS[0]] - neutral[SPAN_LANDMARKS[1]]))
@@ -94,8 +111,11 @@ def fit_landmarks(model: FlameModel, emb: LandmarkEmbedding, landmarks: np.ndarr
     log_focal0 = np.log(focal0)
 
     # Initial translation: depth from the face span, x/y from the landmarks' centre.
-    depth = focal0 * span_m / np.linalg.norm(
-        landmarks[:, SPAN_LANDMARKS[0]] - landmarks[:, SPAN_LANDMARKS[1]], axis=-1)
+    depth = (
+        focal0
+        * span_m
+        / np.linalg.norm(landmarks[:, SPAN_LANDMARKS[0]] - landmarks[:, SPAN_LANDMARKS[1]], axis=-1)
+    )
     centre = landmarks.mean(axis=1)
     x = (centre[:, 0] - width / 2) * depth / focal0
     y = -(centre[:, 1] - height / 2) * depth / focal0
@@ -115,8 +135,14 @@ def fit_landmarks(model: FlameModel, emb: LandmarkEmbedding, landmarks: np.ndarr
     gap_w = torch.from_numpy(1.0 / gaps)[:, None]  # neighbours further apart bind less
 
     def project():
-        verts = layer(shape=p["shape"], expr=p["expr"], jaw=p["jaw"], eyes=p["eyes"],
-                      rotation=p["rotation"], translation=p["translation"])
+        verts = layer(
+            shape=p["shape"],
+            expr=p["expr"],
+            jaw=p["jaw"],
+            eyes=p["eyes"],
+            rotation=p["rotation"],
+            translation=p["translation"],
+        )
         pts = (verts[:, corner_index] * bary[None, :, :, None]).sum(2)  # (T,478,3)
         cam_x, cam_y, cam_z = pts[..., 0], -pts[..., 1], CAMERA_DISTANCE - pts[..., 2]
         f = torch.exp(p["log_focal"])
@@ -131,22 +157,35 @@ def fit_landmarks(model: FlameModel, emb: LandmarkEmbedding, landmarks: np.ndarr
 
     def energy():
         r = (project() - target).norm(dim=-1) / scale
-        rho = torch.sqrt(r.square() + opt.delta ** 2) - opt.delta
+        rho = torch.sqrt(r.square() + opt.delta**2) - opt.delta
         data = ((rho * weight).sum(-1) / weight.sum()).mean()
         e = data + w["shape"] * p["shape"].square().sum() / max(n_frames, 1) ** 0.5
         e = e + w["expr"] * p["expr"].square().sum(-1).mean()
         e = e + w["jaw"] * p["jaw"].square().sum(-1).mean()
         e = e + w["eyes"] * p["eyes"].square().sum(-1).mean()
         e = e + w["focal"] * (p["log_focal"] - log_focal0).square().sum()
-        e = e + w["smooth_expr"] * smooth("expr") + w["smooth_pose"] * (
-            smooth("rotation") + smooth("jaw")) + w["smooth_translation"] * smooth(
-            "translation") + w["smooth_eyes"] * smooth("eyes")
+        e = (
+            e
+            + w["smooth_expr"] * smooth("expr")
+            + w["smooth_pose"] * (smooth("rotation") + smooth("jaw"))
+            + w["smooth_translation"] * smooth("translation")
+            + w["smooth_eyes"] * smooth("eyes")
+        )
         return e, data
 
-    lrs = {"shape": 0.05, "expr": 0.05, "jaw": 0.01, "eyes": 0.02, "rotation": 0.01,
-           "translation": 0.002, "log_focal": 0.01}
-    stages = [(("rotation", "translation", "log_focal"), opt.rigid_steps),
-              (tuple(lrs), opt.full_steps)]
+    lrs = {
+        "shape": 0.05,
+        "expr": 0.05,
+        "jaw": 0.01,
+        "eyes": 0.02,
+        "rotation": 0.01,
+        "translation": 0.002,
+        "log_focal": 0.01,
+    }
+    stages = [
+        (("rotation", "translation", "log_focal"), opt.rigid_steps),
+        (tuple(lrs), opt.full_steps),
+    ]
     total = sum(steps for _, steps in stages)
     done = 0
     for keys, steps in stages:
@@ -167,10 +206,20 @@ def fit_landmarks(model: FlameModel, emb: LandmarkEmbedding, landmarks: np.ndarr
         residual = (projected - target).norm(dim=-1).numpy().astype(np.float64)
     focal = float(np.exp(p["log_focal"].item()))
     K, w2c = fixed_camera(focal, size)
-    codes = {k: p[k].detach().numpy().astype(np.float64)
-             for k in ("expr", "jaw", "eyes", "rotation", "translation")}
+    codes = {
+        k: p[k].detach().numpy().astype(np.float64)
+        for k in ("expr", "jaw", "eyes", "rotation", "translation")
+    }
     codes["shape"] = p["shape"].detach().numpy()[0].astype(np.float64)
     codes["neck"] = np.zeros((n_frames, 3))
     good = emb.weight > 0.5
-    return FitResult(codes, focal, K, w2c, np.median(residual[:, good], axis=1), residual,
-                     projected.numpy().astype(np.float64), time.monotonic() - start)
+    return FitResult(
+        codes,
+        focal,
+        K,
+        w2c,
+        np.median(residual[:, good], axis=1),
+        residual,
+        projected.numpy().astype(np.float64),
+        time.monotonic() - start,
+    )

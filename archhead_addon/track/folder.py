@@ -67,5 +67,3 @@ def write_frame(stage: Path, number: int, rgb: np.ndarray, mask: np.ndarray) -> 
 
 def write_report(stage: Path, report: dict) -> None:
     write_bytes_atomic(stage / REPORT_FILE, json.dumps(report, indent=1).encode())
-
-

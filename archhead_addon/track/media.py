@@ -42,8 +42,9 @@ class FrameSource:
 def open_frames(path) -> FrameSource:
     path = Path(path)
     if not path.exists():
-        raise InputError(path, None, "not found: expected a video file, a folder of numbered "
-                         "images or an image")
+        raise InputError(
+            path, None, "not found: expected a video file, a folder of numbered images or an image"
+        )
     if path.is_dir():
         files = numbered_images(path)
         return FrameSource(path, DEFAULT_FPS, len(files), "images", files)
@@ -54,8 +55,12 @@ def open_frames(path) -> FrameSource:
     capture = cv2.VideoCapture(str(path))
     try:
         if not capture.isOpened():
-            raise InputError(path, None, "not a video OpenCV can decode (and not a PNG, JPG or "
-                             "EXR image or a folder of them)")
+            raise InputError(
+                path,
+                None,
+                "not a video OpenCV can decode (and not a PNG, JPG or "
+                "EXR image or a folder of them)",
+            )
         fps = capture.get(cv2.CAP_PROP_FPS)
         count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
         ok, _ = capture.read()
@@ -84,5 +89,9 @@ def _video_frames(path: Path, limit: int) -> Iterator[tuple[int, np.ndarray]]:
     finally:
         capture.release()
     if number < limit:
-        warn_input(path, None, f"the video ended after {number} of the {limit} frames its "
-                   "header announces (truncated?); using those")
+        warn_input(
+            path,
+            None,
+            f"the video ended after {number} of the {limit} frames its "
+            "header announces (truncated?); using those",
+        )

@@ -31,11 +31,19 @@ def overlay_sheet(data, model: FlameModel, picks: int = 6, width: int = 256) -> 
     columns = []
     for i in chosen:
         frame = read_image(files[i][1])[0][..., :3]
-        verts = forward(model, shape=seq.shape[i], expr=seq.expr[i], jaw=seq.jaw[i],
-                        neck=seq.neck[i], eyes=seq.eyes[i], rotation=seq.rotation[i],
-                        translation=seq.translation[i])[0]
-        columns.append(np.concatenate([frame, overlay(model, frame, verts, seq.K[i],
-                                                      seq.w2c[i])], axis=0))
+        verts = forward(
+            model,
+            shape=seq.shape[i],
+            expr=seq.expr[i],
+            jaw=seq.jaw[i],
+            neck=seq.neck[i],
+            eyes=seq.eyes[i],
+            rotation=seq.rotation[i],
+            translation=seq.translation[i],
+        )[0]
+        columns.append(
+            np.concatenate([frame, overlay(model, frame, verts, seq.K[i], seq.w2c[i])], axis=0)
+        )
     from ..train.images import resize
 
     sheet = np.concatenate([resize(c, (2 * width, width)) for c in columns], axis=1)
@@ -49,8 +57,10 @@ def main(argv=None) -> int:
     from ..io.atomic import write_bytes_atomic
     from ..synthetic.png import encode_png
 
-    parser = argparse.ArgumentParser(prog="python -m archhead_addon.track.overlay",
-                                     description="Frames over tracked-mesh overlays, as a PNG.")
+    parser = argparse.ArgumentParser(
+        prog="python -m archhead_addon.track.overlay",
+        description="Frames over tracked-mesh overlays, as a PNG.",
+    )
     parser.add_argument("--data", required=True, help="a tracked training folder")
     parser.add_argument("--out", required=True, help="PNG to write")
     parser.add_argument("--picks", type=int, default=6)

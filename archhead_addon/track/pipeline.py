@@ -70,8 +70,12 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             if size is None:
                 size = rgb.shape[:2]
             elif rgb.shape[:2] != size:
-                raise InputError(source.path, None, f"frame {number} is {rgb.shape[1]}x"
-                                 f"{rgb.shape[0]}, the first was {size[1]}x{size[0]}")
+                raise InputError(
+                    source.path,
+                    None,
+                    f"frame {number} is {rgb.shape[1]}x"
+                    f"{rgb.shape[0]}, the first was {size[1]}x{size[0]}",
+                )
             found = detect(rgb)
             multi += found.n_faces > 1
             if found.landmarks is None:
@@ -83,26 +87,44 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             say(event="step", stage="detect", step=len(numbers) + len(dropped), total=total)
     times["detect"] = time.monotonic() - t0
     if multi:
-        warn_input(source.path, None, f"{multi} frames show more than one face; the largest "
-                   "face of each frame was tracked")
+        warn_input(
+            source.path,
+            None,
+            f"{multi} frames show more than one face; the largest face of each frame was tracked",
+        )
     if len(numbers) < MIN_FRAMES:
-        raise InputError(source.path, None, f"a face was found in {len(numbers)} of "
-                         f"{len(numbers) + len(dropped)} frames; tracking needs at least "
-                         f"{MIN_FRAMES}")
+        raise InputError(
+            source.path,
+            None,
+            f"a face was found in {len(numbers)} of "
+            f"{len(numbers) + len(dropped)} frames; tracking needs at least "
+            f"{MIN_FRAMES}",
+        )
     landmarks = np.array(landmarks)
     numbers = np.array(numbers)
 
     t0 = time.monotonic()
-    fit = fit_landmarks(model, embedding, landmarks, numbers, source.fps, size,
-                        FitOptions(focal=opt.focal),
-                        progress=lambda d, n, e: say(event="step", stage="fit", step=d,
-                                                     total=n))
+    fit = fit_landmarks(
+        model,
+        embedding,
+        landmarks,
+        numbers,
+        source.fps,
+        size,
+        FitOptions(focal=opt.focal),
+        progress=lambda d, n, e: say(event="step", stage="fit", step=d, total=n),
+    )
     times["fit"] = time.monotonic() - t0
     limit = max(OUTLIER_RATIO * np.median(fit.residual_px), OUTLIER_MIN_PX)
     keep = fit.residual_px <= limit
     for number, r in zip(numbers[~keep], fit.residual_px[~keep], strict=True):
-        dropped.append({"frame": int(number), "reason": f"landmark fit residual {r:.1f} px "
-                        f"(limit {limit:.1f} px): face occluded or mis-detected"})
+        dropped.append(
+            {
+                "frame": int(number),
+                "reason": f"landmark fit residual {r:.1f} px "
+                f"(limit {limit:.1f} px): face occluded or mis-detected",
+            }
+        )
     if keep.sum() < MIN_FRAMES:
         raise InputError(source.path, None, f"only {keep.sum()} frames fit the face model")
     if dropped:
@@ -117,12 +139,22 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     kept = np.flatnonzero(keep)
     n = len(kept)
     codes = {k: (v if k == "shape" else v[kept]) for k, v in fit.codes.items()}
-    seq = Sequence(shape=np.tile(codes["shape"], (n, 1)), expr=codes["expr"],
-                   jaw=codes["jaw"], neck=codes["neck"], eyes=codes["eyes"],
-                   rotation=codes["rotation"], translation=codes["translation"],
-                   fps=source.fps, frame_ids=numbers[kept], source=str(source.path),
-                   format="archhead-track", K=np.tile(K, (n, 1, 1)),
-                   w2c=np.tile(fit.w2c, (n, 1, 1)), image_size=(opt.size, opt.size)).validate()
+    seq = Sequence(
+        shape=np.tile(codes["shape"], (n, 1)),
+        expr=codes["expr"],
+        jaw=codes["jaw"],
+        neck=codes["neck"],
+        eyes=codes["eyes"],
+        rotation=codes["rotation"],
+        translation=codes["translation"],
+        fps=source.fps,
+        frame_ids=numbers[kept],
+        source=str(source.path),
+        format="archhead-track",
+        K=np.tile(K, (n, 1, 1)),
+        w2c=np.tile(fit.w2c, (n, 1, 1)),
+        image_size=(opt.size, opt.size),
+    ).validate()
 
     t0 = time.monotonic()
     out_size = (opt.size, opt.size)
@@ -134,16 +166,17 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             j = position.get(number)
             if j is None:
                 continue
-            crop = rgb[y0:y0 + side, x0:x0 + side]
-            mask = masks[kept[j]][y0:y0 + side, x0:x0 + side].astype(np.float32) / 255.0
+            crop = rgb[y0 : y0 + side, x0 : x0 + side]
+            mask = masks[kept[j]][y0 : y0 + side, x0 : x0 + side].astype(np.float32) / 255.0
             frame = np.round(np.clip(resize(crop, out_size), 0, 255)).astype(np.uint8)
             mask = resize(mask, out_size)
-            mask[cut_rows[j]:] = 0.0  # clothes and shoulders below the head mesh
+            mask[cut_rows[j] :] = 0.0  # clothes and shoulders below the head mesh
             write_frame(stage, number, frame, mask)
             say(event="step", stage="write", step=j + 1, total=n)
         times["write"] = time.monotonic() - t0
-        report = _report(source, opt, numbers, landmarks, kept, dropped, fit, scale,
-                         (x0, y0, side), times, multi)
+        report = _report(
+            source, opt, numbers, landmarks, kept, dropped, fit, scale, (x0, y0, side), times, multi
+        )
         write_report(stage, report)
     return report
 
@@ -152,7 +185,7 @@ def _neck_rows(model, codes, K, w2c, size, chunk: int = 64) -> np.ndarray:
     """Per frame, the first image row below the whole head mesh (the mask ends there)."""
     rows = []
     for start in range(0, len(codes["expr"]), chunk):
-        part = {k: v[start:start + chunk] for k, v in codes.items() if k != "shape"}
+        part = {k: v[start : start + chunk] for k, v in codes.items() if k != "shape"}
         verts = forward(model, shape=codes["shape"], **part)
         cam = verts @ w2c[:3, :3].T + w2c[:3, 3]
         y = (cam @ K.T)[..., 1] / cam[..., 2]
@@ -170,25 +203,34 @@ def jitter_px(points: np.ndarray, numbers: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(second[run], axis=-1)))
 
 
-def _report(source, opt, numbers, landmarks, kept, dropped, fit, scale, crop, times,
-            multi) -> dict:
+def _report(source, opt, numbers, landmarks, kept, dropped, fit, scale, crop, times, multi) -> dict:
     good = fit.landmark_residual_px[kept] * scale  # at the output size
     residual = fit.residual_px[kept] * scale
     n_read = len(numbers) + sum(d["reason"] == "no face found" for d in dropped)
-    rounded = {k: round(v, 3) for k, v in (
-        ("median", np.median(residual)), ("p95", np.percentile(residual, 95)),
-        ("all_landmarks_median", np.median(good)))}
+    rounded = {
+        k: round(v, 3)
+        for k, v in (
+            ("median", np.median(residual)),
+            ("p95", np.percentile(residual, 95)),
+            ("all_landmarks_median", np.median(good)),
+        )
+    }
     return {
-        "source": str(source.path), "frames_read": int(n_read), "frames_kept": int(len(kept)),
+        "source": str(source.path),
+        "frames_read": int(n_read),
+        "frames_kept": int(len(kept)),
         "dropped": sorted(dropped, key=lambda d: d["frame"]),
-        "frames_with_several_faces": int(multi), "output_size": opt.size,
+        "frames_with_several_faces": int(multi),
+        "output_size": opt.size,
         "crop_xywh": [crop[0], crop[1], crop[2], crop[2]],
-        "focal_px_source": round(fit.focal, 2), "focal_given": opt.focal is not None,
+        "focal_px_source": round(fit.focal, 2),
+        "focal_given": opt.focal is not None,
         "model": opt.flame or "built-in",
         "residual_px": rounded,
         "jitter_px": {
             "fitted": round(jitter_px(fit.projected[kept] * scale, numbers[kept]), 3),
-            "detected": round(jitter_px(landmarks[kept] * scale, numbers[kept]), 3)},
+            "detected": round(jitter_px(landmarks[kept] * scale, numbers[kept]), 3),
+        },
         "seconds": {k: round(v, 2) for k, v in times.items()},
         "seconds_per_frame": round(sum(times.values()) / max(n_read, 1), 3),
     }

