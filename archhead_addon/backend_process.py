@@ -48,6 +48,12 @@ def train_command(python: str, data_dir, out_dir, config=None, resume: bool = Fa
     return cmd
 
 
+def track_command(python: str, source, out_dir, frames: int = 0, size: int = 512) -> list:
+    cmd = [str(python), "-m", "archhead_addon", "track", str(source), "--out", str(out_dir)]
+    cmd += ["--size", str(size), "--progress-json"]
+    return cmd + (["--frames", str(frames)] if frames > 0 else [])
+
+
 def format_eta(seconds) -> str:
     if seconds is None or not seconds >= 0:
         return "--:--"

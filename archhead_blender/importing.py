@@ -23,6 +23,5 @@ def import_sequence(context, path, options: dict | None = None, model_path: str 
         options.pop("frame_start", 0), None if end < 0 else end + 1, options.pop("stride", 1)
     )
     info = {"sequence": str(path), "format": seq.format, "frames": len(seq), "source_fps": seq.fps}
-    return build_head(
-        context, model, seq, ImportOptions(name=Path(path).stem or "ArchHead", **options), info
-    )
+    options.setdefault("name", Path(path).stem or "ArchHead")
+    return build_head(context, model, seq, ImportOptions(**options), info)

@@ -29,6 +29,8 @@ class RuntimeState:
     suspended: int = 0
     # The training run the panel shows (training.TrainingRun), if one is going.
     training_run: Any = None
+    # The tracking run the panel shows (tracking.TrackingRun), if one is going.
+    tracking_run: Any = None
 
 
 STATE = RuntimeState()
@@ -37,11 +39,12 @@ STATE = RuntimeState()
 def reset(keep_models: bool = True) -> None:
     """Forget everything that belongs to the open file. A running training backend is asked
     to stop (it saves a checkpoint): the modal operator that watched it does not survive a
-    file load or the add-on being disabled. `keep_models=False` (unregister) also drops the
+    file load or the add-on being disabled (a tracking run, which has nothing to save,
+    just stops). `keep_models=False` (unregister) also drops the
     model caches."""
-    run = STATE.training_run
-    if run is not None:
-        run.backend.cancel()
+    for run in (STATE.training_run, STATE.tracking_run):
+        if run is not None:
+            run.backend.cancel()
     models = (STATE.base_models, STATE.head_models) if keep_models else ({}, {})
     fresh = RuntimeState(base_models=models[0], head_models=models[1])
     for name in RuntimeState.__dataclass_fields__:

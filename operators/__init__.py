@@ -9,6 +9,7 @@ from . import (
     import_sequence,
     lod,
     ply_export,
+    track_operator,
     train_operator,
 )
 
@@ -21,6 +22,8 @@ _CLASSES = (
     ply_export.ARCHHEAD_OT_export_ply,
     train_operator.ARCHHEAD_OT_train_avatar,
     train_operator.ARCHHEAD_OT_cancel_training,
+    track_operator.ARCHHEAD_OT_track_video,
+    track_operator.ARCHHEAD_OT_cancel_tracking,
 )
 
 

@@ -6,6 +6,7 @@ from archhead_blender.avatar_objects import avatar_of, head_of
 from archhead_blender.features import missing_kernel
 from archhead_blender.preferences import get_preferences
 from archhead_blender.state import STATE
+from archhead_blender.tracking import current_tracking
 from archhead_blender.training import current_run
 
 
@@ -22,6 +23,7 @@ class ARCHHEAD_PT_main(bpy.types.Panel):
         model = (prefs.flame_model_path if prefs else "") or "built-in"
         layout.label(text=f"Model: {bpy.path.basename(model) or model}", icon="MESH_MONKEY")
         layout.operator("archhead.import_sequence", icon="IMPORT")
+        _draw_tracking(layout)
         _draw_training(layout, context)
         missing = missing_kernel()
         if missing:
@@ -77,6 +79,17 @@ def _draw_avatar(layout, context, head):
         col.prop(settings, "cache_dir", text="")
     box.operator("archhead.export_ply", icon="EXPORT")
     box.operator("archhead.load_avatar", text="Replace Checkpoint", icon="FILE_REFRESH")
+
+
+def _draw_tracking(layout):
+    run = current_tracking()
+    if run is None:
+        layout.operator("archhead.track_video", icon="FILE_MOVIE")
+        return
+    box = layout.box()
+    box.label(text="Tracking", icon="FILE_MOVIE")
+    box.progress(factor=run.fraction, text=run.summary())
+    box.operator("archhead.cancel_tracking", icon="CANCEL")
 
 
 def _draw_training(layout, context):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from ..io.errors import InputError
 from ..train.progress import Progress
 
 
@@ -47,8 +48,12 @@ def _track(args) -> int:
     options = TrackOptions(
         size=args.size, max_frames=args.frames, focal=args.focal, flame=args.flame
     )
-    progress.event("start", input=str(args.input), out=str(args.out))
-    report = track(args.input, args.out, options, progress=say)
+    progress.event("start", step=0, total=0, input=str(args.input), out=str(args.out))
+    try:
+        report = track(args.input, args.out, options, progress=say)
+    except InputError as exc:
+        progress.event("error", message=str(exc))  # the Blender operator shows it
+        raise
     r = report["residual_px"]
     print(
         f"{args.out}: {report['frames_kept']} of {report['frames_read']} frames tracked, "

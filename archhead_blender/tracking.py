@@ -1,0 +1,87 @@
+"""Track a video from Blender: `python -m archhead_addon track` runs as a child process of the
+backend Python (as training does; Blender's Python has neither torch nor mediapipe), watched
+by the Track Video operator's timer through its JSON progress lines. When it finishes, the
+tracked sequence is imported as a rigged head; the training folder stays for Train Avatar.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+
+from archhead_addon.backend_process import BackendRun, track_command
+from archhead_addon.train.dataset import TRACKING_FILE
+from archhead_addon.train.progress import RunStatus
+
+from .avatar_session import flame_model_path
+from .importing import import_sequence
+from .state import STATE
+from .training import backend_python
+
+STAGES = ("detect", "fit", "write")  # in the order the backend reports them
+LOG_NAME = "track.log"  # beside the output folder: the folder itself appears only at the end
+
+
+class TrackingRun:
+    def __init__(self, backend: BackendRun, out_dir: Path, log: Path):
+        self.backend, self.out_dir, self.log = backend, out_dir, log
+        self.status = RunStatus()
+
+    def update(self) -> bool:
+        for record in self.backend.poll():
+            self.status.apply(record)
+        return self.backend.returncode is not None
+
+    @property
+    def fraction(self) -> float:
+        """Progress over the three stages, each a third."""
+        s = self.status
+        if s.stage not in STAGES or not s.total:
+            return 0.0
+        return (STAGES.index(s.stage) + s.step / s.total) / len(STAGES)
+
+    def summary(self) -> str:
+        s = self.status
+        if self.backend.cancelled_at is not None:
+            return "Stopping ..."
+        if s.stage not in STAGES:
+            return "Starting ..."
+        return f"{s.stage.capitalize()}: {s.step} / {s.total}"
+
+
+def current_tracking() -> TrackingRun | None:
+    return STATE.tracking_run
+
+
+def start_tracking(context, source, out_dir, frames: int = 0, size: int = 512) -> TrackingRun:
+    if current_tracking() is not None:
+        raise ValueError("a tracking run is already going; cancel it first")
+    source, out_dir = Path(source).resolve(), Path(out_dir).resolve()
+    if not source.exists():
+        raise ValueError(f"{source}: not found")
+    command = track_command(backend_python(context), source, out_dir, frames, size)
+    model = flame_model_path(context)
+    if model:
+        command += ["--flame", bpy.path.abspath(model)]
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    log = out_dir.parent / f"{out_dir.name}.{LOG_NAME}"
+    STATE.tracking_run = run = TrackingRun(BackendRun(command, log), out_dir, log)
+    return run
+
+
+def finish_tracking(context, run: TrackingRun) -> tuple[str, str]:
+    """Close the run and import its tracking as a head. Returns (report type, message)."""
+    STATE.tracking_run = None
+    run.update()
+    run.backend.close()
+    if run.backend.cancelled_at is not None:
+        return "INFO", "Tracking cancelled; nothing was written"
+    tracking = run.out_dir / TRACKING_FILE
+    if run.backend.returncode != 0 or not tracking.is_file():
+        reason = run.status.error or f"exit code {run.backend.returncode}"
+        return "ERROR", f"tracking failed ({reason}); see {run.log}"
+    head = import_sequence(
+        context, tracking, {"name": run.out_dir.name}, model_path=flame_model_path(context)
+    )
+    return "INFO", f"Tracked into {run.out_dir}; imported as {head.name}"
