@@ -40,6 +40,18 @@ def installed_addon():
     return _state["module"]
 
 
+def uninstall_addon() -> None:
+    """Remove what installed_addon() installed. Blender puts an extension's wheels into the
+    user profile's shared `extensions/.local` site-packages, which every later bpy process
+    puts on sys.path: left there, a stale copy of the packages would shadow the checkout."""
+    if "module" in _state:
+        import bpy
+
+        repo_dir = bpy.context.preferences.extensions.repos[REPO_MODULE].directory
+        bpy.ops.extensions.package_uninstall(repo_directory=repo_dir, pkg_id="archhead")
+        _state.clear()
+
+
 def state() -> dict:
     """What installed_addon() built: {"module", "zip"}."""
     return _state

@@ -16,6 +16,10 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# Scripts the tests start (bpy processes) must run this checkout's packages even while the
+# session's installed extension has its wheel in the user profile's extensions/.local.
+_ROOT = str(Path(__file__).resolve().parents[1])
+os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (_ROOT, os.environ.get("PYTHONPATH")) if p)
 
 
 @pytest.fixture(scope="session")
@@ -52,3 +56,10 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "gpu" in item.keywords and not cuda:
             item.add_marker(skip)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Uninstall the session's extension, however a test installed it (addon_env)."""
+    from addon_env import uninstall_addon
+
+    uninstall_addon()
