@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import bpy
 
 from archhead_blender.tracking import (
@@ -11,15 +9,17 @@ from archhead_blender.tracking import (
     finish_tracking,
     start_tracking,
 )
-from archhead_blender.training import POLL_S
+
+from .backend_watch import BackendWatch
 
 
-class ARCHHEAD_OT_track_video(bpy.types.Operator):
+class ARCHHEAD_OT_track_video(BackendWatch, bpy.types.Operator):
     """Track a face video into a training folder in a background process, then import the
     tracked head"""
 
     bl_idname = "archhead.track_video"
     bl_label = "Track Video"
+    status_prefix = "ArchHead tracking"
 
     video: bpy.props.StringProperty(
         name="Video", subtype="FILE_PATH", description="Video file, or a folder of frames"
@@ -52,38 +52,10 @@ class ARCHHEAD_OT_track_video(bpy.types.Operator):
         except (OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        if bpy.app.background:  # no event loop: wait here
-            while not self.run.update():
-                time.sleep(POLL_S)
-            return self._finish(context)
-        wm = context.window_manager
-        self.timer = wm.event_timer_add(POLL_S, window=context.window)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        return self.watch(context)
 
-    def modal(self, context, event):
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        done = self.run.update()
-        if context.workspace is not None:
-            context.workspace.status_text_set(
-                None if done else f"ArchHead tracking: {self.run.summary()}"
-            )
-        for area in context.screen.areas if context.screen else ():
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
-        if not done:
-            return {"PASS_THROUGH"}
-        context.window_manager.event_timer_remove(self.timer)
-        return self._finish(context)
-
-    def _finish(self, context):
-        try:
-            kind, message = finish_tracking(context, self.run)
-        except (OSError, ValueError) as exc:
-            kind, message = "ERROR", str(exc)
-        self.report({kind}, message)
-        return {"FINISHED"} if kind == "INFO" else {"CANCELLED"}
+    def finish_run(self, context):
+        return finish_tracking(context, self.run)
 
 
 class ARCHHEAD_OT_cancel_tracking(bpy.types.Operator):

@@ -5,30 +5,30 @@ the ones the user set override it, so both start the same avatar."""
 
 from __future__ import annotations
 
-import time
-
 import bpy
 
 from archhead_addon.io.errors import InputError
 from archhead_addon.train.config import config_data
 from archhead_blender.avatar_objects import head_of
 from archhead_blender.training import (
-    POLL_S,
     current_run,
     finish_training,
     start_training,
     training_settings,
 )
 
+from .backend_watch import BackendWatch
+
 PRESET = config_data()  # read once: the properties' defaults
 OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
 
 
-class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
+class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
     """Train an avatar from video frames and their tracking in a background process"""
 
     bl_idname = "archhead.train_avatar"
     bl_label = "Train Avatar"
+    status_prefix = "ArchHead training"
 
     frames_dir: bpy.props.StringProperty(
         name="Frames", subtype="DIR_PATH", description="Folder of numbered video frames"
@@ -73,14 +73,7 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        if bpy.app.background:  # `blender -b` or the bpy module: no event loop, so wait here
-            while not self.run.update():
-                time.sleep(POLL_S)
-            return self._finish(context)
-        wm = context.window_manager
-        self.timer = wm.event_timer_add(POLL_S, window=context.window)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        return self.watch(context)
 
     def overrides(self) -> dict:
         """The fields the user (or a script) set; the rest come from the base config."""
@@ -90,29 +83,8 @@ class ARCHHEAD_OT_train_avatar(bpy.types.Operator):
             if self.properties.is_property_set(name)
         }
 
-    def modal(self, context, event):
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        done = self.run.update()
-        if context.workspace is not None:
-            context.workspace.status_text_set(
-                None if done else f"ArchHead training: {self.run.summary()}"
-            )
-        for area in context.screen.areas if context.screen else ():
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
-        if not done:
-            return {"PASS_THROUGH"}
-        context.window_manager.event_timer_remove(self.timer)
-        return self._finish(context)
-
-    def _finish(self, context):
-        try:
-            kind, message = finish_training(context, self.run)
-        except (InputError, OSError, ValueError) as exc:
-            kind, message = "ERROR", str(exc)
-        self.report({kind}, message)
-        return {"FINISHED"} if kind == "INFO" else {"CANCELLED"}
+    def finish_run(self, context):
+        return finish_training(context, self.run)
 
 
 class ARCHHEAD_OT_cancel_training(bpy.types.Operator):

@@ -41,15 +41,23 @@ def installed_addon():
 
 
 def uninstall_addon() -> None:
-    """Remove what installed_addon() installed. Blender puts an extension's wheels into the
-    user profile's shared `extensions/.local` site-packages, which every later bpy process
-    puts on sys.path: left there, a stale copy of the packages would shadow the checkout."""
-    if "module" in _state:
-        import bpy
+    """Remove the wheel contents installed_addon() left. Blender puts an extension's wheels
+    into the user profile's shared `extensions/.local` site-packages, which every later bpy
+    process puts on sys.path: left there, a stale copy of the packages would shadow the
+    checkout. Removed by name, since tests that load files may have dropped the session's
+    repository from the preferences already."""
+    if "module" not in _state:
+        return
+    import shutil
 
-        repo_dir = bpy.context.preferences.extensions.repos[REPO_MODULE].directory
-        bpy.ops.extensions.package_uninstall(repo_directory=repo_dir, pkg_id="archhead")
-        _state.clear()
+    import bpy
+
+    local = Path(bpy.utils.user_resource("EXTENSIONS", path=".local"))
+    for site in local.glob("lib/python*/site-packages"):
+        for name in ("archhead_addon", "archhead_blender", "archhead-*.dist-info"):
+            for path in site.glob(name):
+                shutil.rmtree(path)
+    _state.clear()
 
 
 def state() -> dict:

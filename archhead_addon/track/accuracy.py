@@ -97,7 +97,7 @@ def summarise(errors: np.ndarray) -> dict:
 
 
 def main(argv=None) -> int:
-    from .fit import FitOptions, fit_landmarks
+    from .fit import FitOptions, fit_landmarks, fitted_sequence
     from .pipeline import TrackOptions, track
 
     parser = argparse.ArgumentParser(
@@ -155,20 +155,7 @@ def main(argv=None) -> int:
         size,
         FitOptions(focal=focal or float(truth.K[0, 0, 0])),
     )
-    c = fit.codes
-    perfect_seq = Sequence(
-        shape=np.tile(c["shape"], (len(perfect), 1)),
-        expr=c["expr"],
-        jaw=c["jaw"],
-        neck=c["neck"],
-        eyes=c["eyes"],
-        rotation=c["rotation"],
-        translation=c["translation"],
-        fps=truth.fps,
-        frame_ids=truth_kept.frame_ids,
-        source="perfect",
-        format="fit",
-    )
+    perfect_seq = fitted_sequence(fit.codes, truth_kept.frame_ids, truth.fps, "perfect")
     result = {
         "frames": int(kept.sum()),
         "known_focal": args.known_focal,

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..flame.model import FlameModel
 from ..flame.subset import vertex_subset
+from ..sequences import Sequence
 from .embedding import LandmarkEmbedding
 
 CAMERA_DISTANCE = 1.0  # metres from the FLAME origin to the camera at the rest pose
@@ -223,3 +224,19 @@ def fit_landmarks(
         projected.numpy().astype(np.float64),
         time.monotonic() - start,
     )
+
+
+def fitted_sequence(codes: dict, frame_ids, fps: float, source: str, **camera) -> Sequence:
+    """The fitted codes (shape once, the rest per frame) as a tracked Sequence; `camera`:
+    K, w2c, image_size, as Sequence takes them."""
+    n = len(codes["expr"])
+    per_frame = {k: codes[k] for k in ("expr", "jaw", "neck", "eyes", "rotation", "translation")}
+    return Sequence(
+        shape=np.tile(codes["shape"], (n, 1)),
+        **per_frame,
+        fps=fps,
+        frame_ids=frame_ids,
+        source=source,
+        format="archhead-track",
+        **camera,
+    ).validate()

@@ -14,12 +14,12 @@ import numpy as np
 from ..flame.lbs import forward
 from ..flame.model import load_model
 from ..io.errors import InputError, warn_input
-from ..sequences import Sequence, write_canonical
+from ..sequences import write_canonical
 from ..train.dataset import TRACKING_FILE
 from ..train.images import resize
 from .detect import FaceDetector
 from .embedding import landmark_embedding
-from .fit import FitOptions, fit_landmarks
+from .fit import FitOptions, fit_landmarks, fitted_sequence
 from .folder import staged_folder, write_frame, write_report
 from .media import open_frames
 
@@ -139,22 +139,15 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     kept = np.flatnonzero(keep)
     n = len(kept)
     codes = {k: (v if k == "shape" else v[kept]) for k, v in fit.codes.items()}
-    seq = Sequence(
-        shape=np.tile(codes["shape"], (n, 1)),
-        expr=codes["expr"],
-        jaw=codes["jaw"],
-        neck=codes["neck"],
-        eyes=codes["eyes"],
-        rotation=codes["rotation"],
-        translation=codes["translation"],
-        fps=source.fps,
-        frame_ids=numbers[kept],
-        source=str(source.path),
-        format="archhead-track",
+    seq = fitted_sequence(
+        codes,
+        numbers[kept],
+        source.fps,
+        str(source.path),
         K=np.tile(K, (n, 1, 1)),
         w2c=np.tile(fit.w2c, (n, 1, 1)),
         image_size=(opt.size, opt.size),
-    ).validate()
+    )
 
     t0 = time.monotonic()
     out_size = (opt.size, opt.size)
