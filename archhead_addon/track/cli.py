@@ -33,6 +33,7 @@ def add_track(commands) -> None:
 
 
 def _track(args) -> int:
+    from .detect import TrackerUnavailable
     from .pipeline import TrackOptions, track
 
     progress = Progress(args.progress_json)
@@ -51,9 +52,12 @@ def _track(args) -> int:
     progress.event("start", step=0, total=0, input=str(args.input), out=str(args.out))
     try:
         report = track(args.input, args.out, options, progress=say)
-    except InputError as exc:
+    except (InputError, TrackerUnavailable) as exc:
         progress.event("error", message=str(exc))  # the Blender operator shows it
-        raise
+        if isinstance(exc, InputError):
+            raise  # run_command: one `error:` line, status 2
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     r = report["residual_px"]
     print(
         f"{args.out}: {report['frames_kept']} of {report['frames_read']} frames tracked, "
@@ -82,8 +86,12 @@ def add_subject(commands) -> None:
 
 
 def _subject(args) -> int:
-    from .real_subject import REAL_VIDEO, fetch_media
+    from .real_subject import REAL_VIDEO, MediaUnavailable, fetch_media
 
-    args.input = fetch_media() / REAL_VIDEO
+    try:
+        args.input = fetch_media() / REAL_VIDEO
+    except MediaUnavailable as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     args.flame = args.focal = None
     return _track(args)

@@ -42,9 +42,6 @@ class LandmarkEmbedding:
     weight: np.ndarray  # (478,) in [0, 1]; 0 for landmarks not found on the model
     spread: np.ndarray  # (478,) metres between views (median distance to the chosen point)
 
-    def vertex_ids(self, model_faces: np.ndarray) -> np.ndarray:
-        return model_faces[self.faces]  # (478,3)
-
     def points(self, verts: np.ndarray, model_faces: np.ndarray) -> np.ndarray:
         """Landmark positions (...,478,3) on posed vertices (...,V,3)."""
         return np.einsum("...lkc,lk->...lc", verts[..., model_faces[self.faces], :], self.bary)
