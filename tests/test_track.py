@@ -19,9 +19,10 @@ from archhead_addon.flame.subset import vertex_subset
 from archhead_addon.io.errors import InputError, InputWarning
 from archhead_addon.sequences import read_sequence
 from archhead_addon.track.accuracy import code_errors, vertex_errors
+from archhead_addon.track.detect import hand_cover
 from archhead_addon.track.embedding import landmark_embedding
 from archhead_addon.track.pipeline import TrackOptions, track
-from archhead_addon.track.real_subject import fetch_media
+from archhead_addon.track.real_subject import REAL_VIDEO, fetch_media
 from archhead_addon.train.dataset import FrameDataset
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -170,6 +171,34 @@ def test_frames_without_a_face_are_dropped_and_reported(media, tmp_path):
     seq = read_sequence(out / "tracking.npz")
     dropped = {d["frame"] for d in report["dropped"]}
     assert not dropped & set(seq.frame_ids.tolist())
+
+
+def test_hand_cover_counts_the_face_points_under_a_hand():
+    face = np.stack(np.meshgrid(np.linspace(100, 200, 10), np.linspace(100, 200, 10)), -1)
+    face = face.reshape(-1, 2)
+    rng = np.random.default_rng(0)
+    over_lower_half = rng.uniform((100, 150), (200, 200), size=(21, 2))
+    beside = over_lower_half + (300, 0)
+    assert hand_cover(face, []) == 0.0
+    assert hand_cover(face, [beside]) == 0.0
+    assert 0.3 < hand_cover(face, [over_lower_half]) < 0.8
+    assert hand_cover(face, [over_lower_half, over_lower_half - (0, 50)]) > 0.8
+
+
+def test_frames_with_a_hand_over_the_face_are_dropped_and_reported(media, tmp_path):
+    """In the real clip a hand comes up over the face at frame 58."""
+    out = tmp_path / "out"
+    with pytest.warns(InputWarning, match="frames dropped"):
+        report = track(media / REAL_VIDEO, out, TrackOptions(size=96, max_frames=64))
+    hands = [d["frame"] for d in report["dropped"] if "a hand covers" in d["reason"]]
+    assert hands and min(hands) >= 55 and report["frames_with_a_hand_over_the_face"] == len(hands)
+    assert not set(hands) & set(read_sequence(out / "tracking.npz").frame_ids.tolist())
+    kept = track(
+        media / REAL_VIDEO,
+        tmp_path / "all",
+        TrackOptions(size=96, max_frames=64, max_hand_cover=1.0),
+    )
+    assert kept["frames_kept"] == 64 and kept["frames_with_a_hand_over_the_face"] == 0
 
 
 def test_a_group_photo_gives_a_warning_or_a_clear_error(media, tmp_path):

@@ -6,6 +6,7 @@ import sys
 
 from ..io.errors import InputError
 from ..train.progress import Progress
+from .detect import MAX_HAND_COVER
 
 
 def add_track(commands) -> None:
@@ -23,6 +24,13 @@ def add_track(commands) -> None:
     p.add_argument("--size", type=int, default=512, help="square output size (default 512)")
     p.add_argument(
         "--focal", type=float, help="focal length in pixels of the input frames (default: fitted)"
+    )
+    p.add_argument(
+        "--max-hand-cover",
+        type=float,
+        default=MAX_HAND_COVER,
+        help="drop frames where a hand covers more than this fraction of the face's landmarks "
+        f"(default {MAX_HAND_COVER}; 1 keeps them all)",
     )
     p.add_argument(
         "--progress-json",
@@ -47,7 +55,11 @@ def _track(args) -> int:
             progress.message(f"{stage} {step}/{total}")
 
     options = TrackOptions(
-        size=args.size, max_frames=args.frames, focal=args.focal, flame=args.flame
+        size=args.size,
+        max_frames=args.frames,
+        focal=args.focal,
+        flame=args.flame,
+        max_hand_cover=args.max_hand_cover,
     )
     progress.event("start", step=0, total=0, input=str(args.input), out=str(args.out))
     try:
@@ -94,4 +106,5 @@ def _subject(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     args.flame = args.focal = None
+    args.max_hand_cover = MAX_HAND_COVER
     return _track(args)

@@ -1,4 +1,5 @@
-"""MediaPipe Face Mesh landmarks (478, iris included) and selfie segmentation masks.
+"""MediaPipe Face Mesh landmarks (478, iris included), selfie segmentation masks, and the
+hands that cover the face.
 
 Only the legacy `solutions` API of `mediapipe==0.10.21` is used: its `.tflite` models ship
 inside the wheel, so nothing is downloaded (later versions fetch their models at run time,
@@ -19,7 +20,16 @@ _MODELS = (
     "modules/face_landmark/face_landmark_with_attention.tflite",
     "modules/face_detection/face_detection_short_range.tflite",
     "modules/selfie_segmentation/selfie_segmentation.tflite",
+    "modules/palm_detection/palm_detection_full.tflite",
+    "modules/hand_landmark/hand_landmark_full.tflite",
 )
+# A face landmark lies under a hand when it is inside the hand's outline (the convex hull of
+# its 21 joints) grown by this fraction of the hand's size: joints sit on the fingers' centre
+# lines, so the bare hull misses the fingers' own width.
+HAND_MARGIN = 0.12
+# A frame with more of its face landmarks under a hand than this is dropped: Face Mesh keeps
+# plausible points under a hand, but the frame would teach the avatar the hand as skin.
+MAX_HAND_COVER = 0.03
 
 
 class TrackerUnavailable(RuntimeError):
@@ -47,14 +57,32 @@ class Detection:
     landmarks: np.ndarray | None  # (478,2) pixels, centres at +0.5; None when no face
     n_faces: int
     mask: np.ndarray | None  # (H,W) float32 foreground probability, when asked for
+    hand_cover: float = 0.0  # fraction of the face's landmarks under a detected hand
+
+
+def hand_cover(face: np.ndarray, hands: list[np.ndarray]) -> float:
+    """Fraction of the face landmarks (L,2) that lie under any of `hands` ((21,2) each)."""
+    import cv2
+
+    covered = np.zeros(len(face), dtype=bool)
+    for hand in hands:
+        hull = cv2.convexHull(hand.astype(np.float32))
+        margin = HAND_MARGIN * float(np.linalg.norm(np.ptp(hand, axis=0)))
+        for i in np.flatnonzero(~covered):
+            pt = (float(face[i, 0]), float(face[i, 1]))
+            covered[i] = cv2.pointPolygonTest(hull, pt, True) > -margin
+    return float(covered.mean())
 
 
 class FaceDetector:
     """Landmarks of the largest face per frame; `video=True` tracks between frames."""
 
-    def __init__(self, video: bool = True, max_faces: int = 4, masks: bool = True):
+    def __init__(
+        self, video: bool = True, max_faces: int = 4, masks: bool = True, hands: bool = True
+    ):
         _check_mediapipe()
         from mediapipe.python.solutions import face_mesh, selfie_segmentation
+        from mediapipe.python.solutions import hands as hand_landmarks
 
         self._mesh = face_mesh.FaceMesh(
             static_image_mode=not video,
@@ -64,6 +92,17 @@ class FaceDetector:
             min_tracking_confidence=0.5,
         )
         self._segment = selfie_segmentation.SelfieSegmentation(model_selection=0) if masks else None
+        self._hands = (
+            hand_landmarks.Hands(
+                static_image_mode=not video,
+                max_num_hands=2,
+                model_complexity=1,
+                min_detection_confidence=0.5,
+                min_tracking_confidence=0.5,
+            )
+            if hands
+            else None
+        )
 
     def __call__(self, rgb: np.ndarray) -> Detection:
         rgb = np.ascontiguousarray(rgb)
@@ -80,12 +119,17 @@ class FaceDetector:
         mask = None
         if self._segment is not None:
             mask = self._segment.process(rgb).segmentation_mask.astype(np.float32)
-        return Detection(landmarks, len(faces), mask)
+        cover = 0.0
+        if self._hands is not None and landmarks is not None:
+            found = self._hands.process(rgb).multi_hand_landmarks or []
+            hands = [np.array([(p.x * width, p.y * height) for p in h.landmark]) for h in found]
+            cover = hand_cover(landmarks, hands)
+        return Detection(landmarks, len(faces), mask, cover)
 
     def close(self) -> None:
-        self._mesh.close()
-        if self._segment is not None:
-            self._segment.close()
+        for solution in (self._mesh, self._segment, self._hands):
+            if solution is not None:
+                solution.close()
 
     def __enter__(self):
         return self

@@ -17,7 +17,7 @@ from ..io.errors import InputError, warn_input
 from ..sequences import write_canonical
 from ..train.dataset import TRACKING_FILE
 from ..train.images import resize
-from .detect import FaceDetector
+from .detect import MAX_HAND_COVER, FaceDetector
 from .embedding import landmark_embedding
 from .fit import FitOptions, fit_landmarks, fitted_sequence
 from .folder import staged_folder, write_frame, write_report
@@ -34,6 +34,7 @@ class TrackOptions:
     max_frames: int | None = None
     focal: float | None = None  # pixels at the source frames' size
     flame: str | None = None  # a FLAME model file; None: the built-in head
+    max_hand_cover: float = MAX_HAND_COVER  # 1 keeps frames with a hand over the face
 
 
 def _square_crop(landmarks: np.ndarray, size: tuple[int, int]) -> tuple[int, int, int]:
@@ -65,7 +66,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     numbers, landmarks, masks, dropped, multi = [], [], [], [], 0
     size = None
     total = source.count if opt.max_frames is None else min(opt.max_frames, source.count)
-    with FaceDetector(video=source.kind == "video") as detect:
+    with FaceDetector(video=source.kind == "video", hands=opt.max_hand_cover < 1) as detect:
         for number, rgb in source.frames(total):
             if size is None:
                 size = rgb.shape[:2]
@@ -80,12 +81,20 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             multi += found.n_faces > 1
             if found.landmarks is None:
                 dropped.append({"frame": number, "reason": "no face found"})
+            elif found.hand_cover > opt.max_hand_cover:
+                dropped.append(
+                    {
+                        "frame": number,
+                        "reason": f"a hand covers {found.hand_cover:.0%} of the face's landmarks",
+                    }
+                )
             else:
                 numbers.append(number)
                 landmarks.append(found.landmarks)
                 masks.append(np.round(found.mask * 255).astype(np.uint8))
             say(event="step", stage="detect", step=len(numbers) + len(dropped), total=total)
     times["detect"] = time.monotonic() - t0
+    n_read = len(numbers) + len(dropped)
     if multi:
         warn_input(
             source.path,
@@ -168,7 +177,18 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             say(event="step", stage="write", step=j + 1, total=n)
         times["write"] = time.monotonic() - t0
         report = _report(
-            source, opt, numbers, landmarks, kept, dropped, fit, scale, (x0, y0, side), times, multi
+            source,
+            opt,
+            n_read,
+            numbers,
+            landmarks,
+            kept,
+            dropped,
+            fit,
+            scale,
+            (x0, y0, side),
+            times,
+            multi,
         )
         write_report(stage, report)
     return report
@@ -196,10 +216,11 @@ def jitter_px(points: np.ndarray, numbers: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(second[run], axis=-1)))
 
 
-def _report(source, opt, numbers, landmarks, kept, dropped, fit, scale, crop, times, multi) -> dict:
+def _report(
+    source, opt, n_read, numbers, landmarks, kept, dropped, fit, scale, crop, times, multi
+) -> dict:
     good = fit.landmark_residual_px[kept] * scale  # at the output size
     residual = fit.residual_px[kept] * scale
-    n_read = len(numbers) + sum(d["reason"] == "no face found" for d in dropped)
     rounded = {
         k: round(v, 3)
         for k, v in (
@@ -214,6 +235,7 @@ def _report(source, opt, numbers, landmarks, kept, dropped, fit, scale, crop, ti
         "frames_kept": int(len(kept)),
         "dropped": sorted(dropped, key=lambda d: d["frame"]),
         "frames_with_several_faces": int(multi),
+        "frames_with_a_hand_over_the_face": sum("hand covers" in d["reason"] for d in dropped),
         "output_size": opt.size,
         "crop_xywh": [crop[0], crop[1], crop[2], crop[2]],
         "focal_px_source": round(fit.focal, 2),
