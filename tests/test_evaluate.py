@@ -179,3 +179,25 @@ def test_bad_arguments_are_refused(subject, avatar_file, tmp_path, capsys):
                 "0,2",
             ]
         )
+
+
+def test_training_frames_can_be_scored_evenly_spread(subject, avatar_file, tmp_path):
+    out = tmp_path / "eval"
+    args = ["--avatar", str(avatar_file), "--data", str(subject), "--out", str(out)]
+    args += ["--resolution", str(SIZE), "--lods", "0", "--precisions", "fp32"]
+    assert main([*args, "--split", "train", "--frames", "3"]) == 0
+    assert "3 train frames" in (out / "metrics.md").read_text()
+    model = load_model()
+    train = FrameDataset(subject, SIZE, model, split="train")
+    runtime = AvatarRuntime.load(avatar_file, model)
+    spread = [0, (len(train) - 1) / 2, len(train) - 1]
+    errors = []
+    for i in spread:
+        item = train[round(i)]
+        rgb = render_frame(
+            runtime, 0.0, item["codes"], item["K"], item["w2c"], train.size, train.background
+        ).rgb
+        errors.append(np.mean((np.clip(rgb, 0, 1) - item["image"]) ** 2))
+    row = next(csv.DictReader((out / "metrics.csv").open()))
+    expected = np.mean([10 * math.log10(1 / e) for e in errors])
+    assert float(row["psnr"]) == pytest.approx(expected, rel=1e-4)

@@ -2,14 +2,16 @@
 
     python -m archhead_addon.evaluate --avatar RUN/avatar.npz --data DIR --out EVAL
         [--lods 0,0.25,0.5,0.75,1] [--precisions fp32,fp16] [--resolution N] [--flame FILE]
-        [--drive SEQ [--drive-lod L] [--drive-frames N]]
+        [--split test|train] [--frames N] [--drive SEQ [--drive-lod L] [--drive-frames N]]
 
 Writes EVAL/metrics.csv and EVAL/metrics.md (L1, PSNR, SSIM, ST-LPIPS, Gaussian count and
 render milliseconds per LOD and precision, and the LOD 1 : LOD 0 ratios beside the paper's),
 EVAL/error_vs_time.png, and EVAL/lods.png (the first test frame: truth, then each LOD).
 --drive renders the avatar driven by another tracked sequence (any supported format) into
 EVAL/reenact/ (cross-identity reenactment). The resolution defaults to the training run's
-(RUN/config.json). Exit status 2: bad input.
+(RUN/config.json). `--split train` scores the frames the avatar was fitted to (how well it
+fits, against how well it generalises); `--frames N` takes N frames evenly spread over the
+split. Exit status 2: bad input.
 """
 
 from __future__ import annotations
@@ -52,6 +54,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--resolution", type=int, help="image size (longer side); default: the training run's"
     )
     p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
+    p.add_argument("--split", choices=("test", "train"), default="test")
+    p.add_argument("--frames", type=int, help="N frames evenly spread over the split")
     p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")
     p.add_argument("--drive-lod", type=float, default=0.0)
     p.add_argument("--drive-frames", type=int, help="render only the first N driving frames")
@@ -83,8 +87,9 @@ def evaluate(args) -> int:
 
     model = load_model(args.flame)
     runtime = AvatarRuntime.load(args.avatar, model)
-    test = FrameDataset(args.data, run_resolution(args), model, split="test")
-    frames = [test[i] for i in range(len(test))]
+    test = FrameDataset(args.data, run_resolution(args), model, split=args.split)
+    count = len(test) if args.frames is None else min(max(args.frames, 1), len(test))
+    frames = [test[int(i)] for i in np.linspace(0, len(test) - 1, count).round()]
     first = {}
 
     def keep_first(lod, precision, index, rgb):
@@ -102,7 +107,7 @@ def evaluate(args) -> int:
         keep_first,
     )
     title = (
-        f"{args.avatar.name}: {len(frames)} test frames of {args.data.name}, "
+        f"{args.avatar.name}: {len(frames)} {args.split} frames of {args.data.name}, "
         f"{test.size[1]}x{test.size[0]} px"
     )
     write_tables(args.out, results, title)
