@@ -118,7 +118,8 @@ print("registered:", hasattr(bpy.types, "ARCHHEAD_PT_main"), hasattr(bpy.ops.arc
 
 
 def test_addon_loads_without_the_compiled_kernel(extension_zip, tmp_path):
-    """What a platform without the kernel gets: the core and Blender side without
+    """What a platform without the kernel and without a compiler gets (the kernel is
+    otherwise compiled on first use): the core and Blender side without
     libarchhead_splat.so. The add-on registers and names the feature that needs it."""
     import subprocess
     import sys
@@ -132,6 +133,7 @@ def test_addon_loads_without_the_compiled_kernel(extension_zip, tmp_path):
         whl.extractall(site, [n for n in whl.namelist() if "/_build/" not in n])
     (tmp_path / "repo").mkdir()
     env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "PYTHONPATH": str(site)}
+    env["CXX"] = "no-such-compiler"
     done = subprocess.run(
         [sys.executable, "-c", INSTALL_AND_REPORT, str(extension_zip), str(tmp_path / "repo")],
         env=env,

@@ -1,6 +1,7 @@
 """Building and loading the splat kernel: idempotent build, clear messages when the compiler
 or the library is missing or stale, and a torch-free numpy path (what Blender runs)."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -25,19 +26,22 @@ def test_build_is_idempotent():
 def test_missing_compiler_says_what_to_install(tmp_path):
     with pytest.raises(build.BuildError, match="No C\\+\\+ compiler found") as err:
         build.find_compiler({"PATH": str(tmp_path)})
-    assert "apt install g++" in str(err.value) and "make setup" in str(err.value)
+    assert "apt install g++" in str(err.value) and "first use" in str(err.value)
     with pytest.raises(build.BuildError, match="no-such-compiler"):
         build.find_compiler({"PATH": "/usr/bin:/bin", "CXX": "no-such-compiler"})
 
 
-def run_copy(tmp_path, code):
-    """Run code against a copy of the package (its build directory as prepared)."""
+def run_copy(tmp_path, code, path=None):
+    """Run code against a copy of the package (its build directory as prepared), with the
+    kernel cache in tmp_path/cache and PATH `path` (default: this process's)."""
+    env = {"PYTHONPATH": str(tmp_path), "ARCHHEAD_CACHE": str(tmp_path / "cache")}
+    env["PATH"] = os.environ["PATH"] if path is None else path
     return subprocess.run(
         [sys.executable, "-c", textwrap.dedent(code)],
         cwd=tmp_path,
         capture_output=True,
         text=True,
-        env={"PYTHONPATH": str(tmp_path)},
+        env=env,
     )
 
 
@@ -51,24 +55,44 @@ def copy_package(tmp_path, with_build):
     return dst
 
 
-LOAD = "from archhead_addon.splat import kernel; kernel.library()"
+LOAD = "from archhead_addon.splat import kernel; print(kernel.library()._name)"
 
 
-def test_loader_reports_missing_library(tmp_path):
+def test_an_installed_copy_compiles_the_kernel_once_into_the_cache(tmp_path):
+    """An extension ships sources only: the first use compiles into the user's cache, which
+    a reinstall leaves alone, and later processes load that library as it is."""
     copy_package(tmp_path, with_build=False)
-    result = run_copy(tmp_path, LOAD)
+    first = run_copy(tmp_path, LOAD)
+    assert first.returncode == 0, first.stderr
+    assert "compiling the splat kernel (first use)" in first.stderr
+    built = Path(first.stdout.strip())
+    assert built.is_relative_to(tmp_path / "cache" / "kernel")
+    stamp = built.stat().st_mtime_ns
+    again = run_copy(tmp_path, LOAD)
+    assert again.returncode == 0 and "compiling" not in again.stderr
+    assert Path(again.stdout.strip()) == built and built.stat().st_mtime_ns == stamp
+
+
+def test_without_a_compiler_the_loader_says_what_to_install(tmp_path):
+    copy_package(tmp_path, with_build=False)
+    result = run_copy(tmp_path, LOAD, path=str(tmp_path))
     assert result.returncode != 0
-    assert "KernelNotBuiltError" in result.stderr and "run `make setup`" in result.stderr
+    assert "KernelNotBuiltError" in result.stderr and "apt install g++" in result.stderr
+    check = "from archhead_addon.splat import build; print(build.unavailable_reason())"
+    assert "No C++ compiler found" in run_copy(tmp_path, check, path=str(tmp_path)).stdout
+    assert run_copy(tmp_path, check).stdout.strip() == "None"  # compiles on first use
 
 
-def test_loader_reports_stale_library(tmp_path):
+def test_a_stale_package_library_is_not_loaded(tmp_path):
     build.build()
     dst = copy_package(tmp_path, with_build=True)
-    assert run_copy(tmp_path, LOAD).returncode == 0
+    fresh = run_copy(tmp_path, LOAD)
+    assert Path(fresh.stdout.strip()) == dst / "splat" / "_build" / build.LIB_NAME
     with open(dst / "splat" / "csrc" / "splat.cpp", "a") as f:
         f.write("// edited\n")
-    result = run_copy(tmp_path, LOAD)
-    assert "older than its sources" in result.stderr and "make setup" in result.stderr
+    stale = run_copy(tmp_path, LOAD)
+    assert stale.returncode == 0, stale.stderr
+    assert Path(stale.stdout.strip()).is_relative_to(tmp_path / "cache" / "kernel")
 
 
 def test_numpy_path_does_not_import_torch(tmp_path):

@@ -1,9 +1,13 @@
-"""Build the C++ splat kernel into a shared library inside the package.
+"""Build the C++ splat kernel into a shared library.
 
-Run `python -m archhead_addon.splat.build` (the `make setup` target does). The build is
-idempotent: the library is rebuilt only when the sources, the flags or the compiler change,
-which a hash stored beside the library records. Standard library only, so Blender's Python
-can run it too.
+Two places hold it. `python -m archhead_addon.splat.build` (the `make setup` target runs it)
+builds inside the package, for a checkout. Where that library is missing or older than the
+sources (an installed Blender extension ships sources, not a binary built on another
+platform), `ensure_library` compiles it on first use into the user's cache
+(`$ARCHHEAD_CACHE/kernel/<hash>/`), keyed by the sources, flags and compiler, so reinstalling
+the extension neither wipes it nor keeps a stale one. Builds are idempotent and atomic (a
+process with the old library loaded keeps a valid file). Standard library only, so
+Blender's Python can run it too.
 """
 
 from __future__ import annotations
@@ -29,8 +33,8 @@ FLAGS = ["-std=c++17", "-O3", "-fopenmp", "-shared", "-fPIC", "-ffp-contract=off
 COMPILERS = ("g++", "c++", "clang++")
 
 INSTALL_HINT = (
-    "Install a C++17 compiler with OpenMP, then run `make setup` (or "
-    "`python -m archhead_addon.splat.build`): Debian/Ubuntu `sudo apt install g++`, "
+    "Install a C++17 compiler with OpenMP (the kernel is then compiled on first use; in a "
+    "checkout `make setup` builds it): Debian/Ubuntu `sudo apt install g++`, "
     "Fedora `sudo dnf install gcc-c++`, macOS `brew install gcc` (and set CXX=g++-14 or "
     "the installed version)."
 )
@@ -76,15 +80,57 @@ def is_current(compiler: str | None = None) -> bool:
     return stamp == [compiler, source_hash(compiler)]
 
 
+def cache_lib_path(compiler: str) -> Path:
+    """Where `ensure_library` keeps the kernel built with `compiler` for these sources."""
+    cache = Path(os.environ.get("ARCHHEAD_CACHE") or Path.home() / ".cache" / "archhead")
+    return cache / "kernel" / source_hash(compiler)[:16] / LIB_NAME
+
+
+def ensure_library(verbose: bool = True) -> Path:
+    """The library for the current sources: the package's when current, else the cache's,
+    compiled there on first use. Raises BuildError (what to install) without a compiler."""
+    if is_current() or (LIB_PATH.exists() and not SOURCE_DIR.exists()):
+        return LIB_PATH
+    compiler = find_compiler()
+    path = cache_lib_path(compiler)
+    if not path.exists():
+        if verbose:
+            print(
+                f"archhead: compiling the splat kernel (first use) into {path.parent}",
+                file=sys.stderr,
+                flush=True,
+            )
+        _compile(compiler, path, verbose=False)
+    return path
+
+
+def unavailable_reason() -> str | None:
+    """None when the kernel is built for these sources or can be compiled on first use, else
+    why not (without compiling anything: Blender asks this while it starts)."""
+    if is_current() or (LIB_PATH.exists() and not SOURCE_DIR.exists()):
+        return None
+    try:
+        path = cache_lib_path(find_compiler())
+    except BuildError as exc:
+        return str(exc)
+    return None if path.exists() or SOURCE_DIR.exists() else f"no kernel sources at {SOURCE_DIR}"
+
+
 def build(force: bool = False, verbose: bool = False) -> Path:
-    """Compile the kernel if needed and return the library path."""
+    """Compile the kernel inside the package if needed and return the library path."""
     compiler = find_compiler()
     if not force and is_current(compiler):
         return LIB_PATH
-    BUILD_DIR.mkdir(parents=True, exist_ok=True)
+    _compile(compiler, LIB_PATH, verbose)
+    STAMP_PATH.write_text(f"{compiler} {source_hash(compiler)}\n")
+    return LIB_PATH
+
+
+def _compile(compiler: str, lib_path: Path, verbose: bool) -> None:
+    lib_path.parent.mkdir(parents=True, exist_ok=True)
     # Compile to a temporary name and rename, so a process that has the old library
     # loaded keeps a valid file.
-    fd, tmp = tempfile.mkstemp(dir=BUILD_DIR, suffix=LIB_PATH.suffix)
+    fd, tmp = tempfile.mkstemp(dir=lib_path.parent, suffix=lib_path.suffix)
     os.close(fd)
     cmd = [compiler, *FLAGS, str(SOURCE_DIR / "splat.cpp"), "-o", tmp]
     if verbose:
@@ -97,12 +143,10 @@ def build(force: bool = False, verbose: bool = False) -> Path:
                 "If the error mentions omp.h or -fopenmp, the compiler lacks OpenMP. "
                 + INSTALL_HINT
             )
-        os.replace(tmp, LIB_PATH)
+        os.replace(tmp, lib_path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    STAMP_PATH.write_text(f"{compiler} {source_hash(compiler)}\n")
-    return LIB_PATH
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -25,7 +25,7 @@ _F32 = ctypes.POINTER(ctypes.c_float)
 
 
 class KernelNotBuiltError(RuntimeError):
-    """The shared library is missing or older than its sources."""
+    """The shared library is not built for these sources and cannot be compiled here."""
 
 
 class _Params(ctypes.Structure):
@@ -48,21 +48,16 @@ _lib: ctypes.CDLL | None = None
 
 
 def library() -> ctypes.CDLL:
-    """The loaded kernel; raises KernelNotBuiltError with the command to run."""
+    """The loaded kernel, compiled on first use where needed (build.ensure_library); raises
+    KernelNotBuiltError saying what to install when it cannot be."""
     global _lib
     if _lib is not None:
         return _lib
-    if not build.LIB_PATH.exists():
-        raise KernelNotBuiltError(
-            f"The splat kernel is not built ({build.LIB_PATH} is missing): run `make setup` "
-            "(or `python -m archhead_addon.splat.build`)."
-        )
-    if build.SOURCE_DIR.exists() and not build.is_current():
-        raise KernelNotBuiltError(
-            f"The splat kernel at {build.LIB_PATH} is older than its sources: run `make setup` "
-            "(or `python -m archhead_addon.splat.build`)."
-        )
-    lib = ctypes.CDLL(str(build.LIB_PATH))
+    try:
+        path = build.ensure_library()
+    except build.BuildError as exc:
+        raise KernelNotBuiltError(f"The splat kernel could not be compiled: {exc}") from exc
+    lib = ctypes.CDLL(str(path))
     if lib.ah_splat_abi_version() != _ABI_VERSION:
         raise KernelNotBuiltError("The splat kernel's ABI version does not match: rebuild it.")
     P, i64, i32, cp = ctypes.POINTER(_Params), ctypes.c_int64, ctypes.c_int32, ctypes.c_char_p
