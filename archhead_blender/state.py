@@ -18,6 +18,9 @@ class RuntimeState:
     # (imports). Pure caches of files: kept across file loads, dropped on unregister.
     base_models: dict[str, Any] = field(default_factory=dict)
     head_models: dict[str, Any] = field(default_factory=dict)
+    # Operator id -> the fields its dialog was last run with, even when it failed (Blender
+    # remembers them only on success). Kept across file loads, dropped on unregister.
+    dialog_fields: dict[str, dict] = field(default_factory=dict)
     # Point object session_uid -> its AvatarSession, or the settings it failed with and why.
     sessions: dict[int, Any] = field(default_factory=dict)
     failures: dict[int, tuple] = field(default_factory=dict)
@@ -45,7 +48,8 @@ def reset(keep_models: bool = True) -> None:
     for run in (STATE.training_run, STATE.tracking_run):
         if run is not None:
             run.backend.cancel()
-    models = (STATE.base_models, STATE.head_models) if keep_models else ({}, {})
-    fresh = RuntimeState(base_models=models[0], head_models=models[1])
+    kept = (STATE.base_models, STATE.head_models, STATE.dialog_fields)
+    kept = kept if keep_models else ({}, {}, {})
+    fresh = RuntimeState(base_models=kept[0], head_models=kept[1], dialog_fields=kept[2])
     for name in RuntimeState.__dataclass_fields__:
         setattr(STATE, name, getattr(fresh, name))

@@ -148,6 +148,7 @@ def start_training(
         raise ValueError("a training run is already going; cancel it first")
     out_dir = Path(out_dir).resolve()
     data = prepare_data(frames_dir, tracking, out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)  # the run's request and log go in first
     run_folder = RunFolder(out_dir)
     config = run_folder.request
     config.write_text(json.dumps(settings, indent=1) + "\n")

@@ -1,15 +1,22 @@
 """Train Avatar and Cancel Training: a modal operator around archhead_blender.training.
 
-Its properties' defaults are the command line's preset (train/config.py DEFAULT_PRESET); only
-the ones the user set override it, so both start the same avatar."""
+Its properties' defaults are the command line's preset (train/config.py DEFAULT_PRESET);
+choosing another preset shows that preset's values; only the fields the user (or a script)
+set override the preset or base config, so the dialog and the command line start the same
+avatar. The dialog opens with the fields it last ran with (kept even when the run failed to
+start), else filled in from the active head when it came from Track Video."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import bpy
 
 from archhead_addon.io.errors import InputError
-from archhead_addon.train.config import config_data
+from archhead_addon.train.config import DEFAULT_PRESET, PRESETS, config_data
+from archhead_addon.train.dataset import FRAMES_DIR, TRACKING_FILE
 from archhead_blender.avatar_objects import head_of
+from archhead_blender.state import STATE
 from archhead_blender.training import (
     current_run,
     finish_training,
@@ -21,6 +28,34 @@ from .backend_watch import BackendWatch
 
 PRESET = config_data()  # read once: the properties' defaults
 OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
+DIALOG_KEY = "train_avatar"  # its remembered fields in STATE.dialog_fields
+REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "resume", "base_config")
+# `preset` is declared before the fields it fills in: Blender applies an operator's given
+# properties in declaration order, so a script's explicit resolution or steps win.
+PRESET_HELP = {
+    "cpu": "The CPU avatar: 256 px, 5,500 steps (about 45 min on 2 cores)",
+    "cpu_short": "The CPU preset with 2,500 steps (about 20 min on 2 cores)",
+    "gpu_paper": "The paper's settings: 512 px, 45,000 steps (a CUDA GPU)",
+    "demo": "A few minutes at 96 px: to check that everything runs",
+}
+PRESET_ITEMS = [(name, name, PRESET_HELP.get(name, "")) for name in PRESETS]
+
+
+def _show_preset(self, context):
+    """Choosing a preset shows its values (they are then what trains)."""
+    values = config_data(self.preset)
+    for name in OVERRIDABLE:
+        setattr(self, name, values[name])
+
+
+def _tracked_folder(head) -> Path | None:
+    """The tracker's folder the head was imported from (frames/ beside tracking.npz)."""
+    sequence = head.get("archhead_sequence") if head is not None else None
+    if not sequence:
+        return None
+    folder = Path(bpy.path.abspath(sequence)).parent
+    ok = Path(sequence).name == TRACKING_FILE and (folder / FRAMES_DIR).is_dir()
+    return folder if ok else None
 
 
 class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
@@ -41,6 +76,12 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
     out_dir: bpy.props.StringProperty(
         name="Output", subtype="DIR_PATH", description="Checkpoints, config and log go here"
     )
+    preset: bpy.props.EnumProperty(
+        name="Preset",
+        items=PRESET_ITEMS,
+        default=DEFAULT_PRESET,
+        update=_show_preset,
+    )
     resolution: bpy.props.IntProperty(name="Resolution", min=32, default=PRESET["resolution"])
     stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0, default=PRESET["stage1_steps"])
     stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0, default=PRESET["stage2_steps"])
@@ -48,24 +89,48 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
     base_config: bpy.props.StringProperty(
         name="Base config",
         subtype="FILE_PATH",
-        description="Optional training config (JSON) in place of the command line's preset; "
-        "the fields above override its values where you changed them",
+        description="Optional training config (JSON) in place of the preset; the fields "
+        "above override its values where you changed them",
     )
 
     def invoke(self, context, event):
-        return context.window_manager.invoke_props_dialog(self, width=420)
+        last = STATE.dialog_fields.get(DIALOG_KEY)
+        if last:
+            for name, value in last.items():
+                setattr(self, name, value)
+        else:
+            folder = _tracked_folder(head_of(context.active_object))
+            if folder is not None:
+                self.frames_dir = str(folder / FRAMES_DIR)
+                self.tracking = str(folder / TRACKING_FILE)
+                self.out_dir = str(folder.parent / f"{folder.name}_avatar")
+        return context.window_manager.invoke_props_dialog(self, width=480)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        for name in ("frames_dir", "tracking", "out_dir", "preset"):
+            layout.prop(self, name)
+        column = layout.column(align=True)
+        for name in OVERRIDABLE:
+            column.prop(self, name)
+        layout.prop(self, "resume")
+        layout.prop(self, "base_config")
 
     def execute(self, context):
         head = head_of(context.active_object)
+        self.remember()
         try:
+            frames_dir, tracking, out_dir = self.paths()
             settings = training_settings(
-                self.overrides(), bpy.path.abspath(self.base_config) if self.base_config else ""
+                self.overrides(),
+                bpy.path.abspath(self.base_config) if self.base_config else self.preset,
             )
             self.run = start_training(
                 context,
-                bpy.path.abspath(self.frames_dir),
-                bpy.path.abspath(self.tracking),
-                bpy.path.abspath(self.out_dir),
+                frames_dir,
+                tracking,
+                out_dir,
                 settings,
                 self.resume,
                 head.name if head else None,
@@ -74,6 +139,28 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         return self.watch(context)
+
+    def paths(self) -> tuple[str, str, str]:
+        """Frames, tracking and output as absolute paths; empty fields are named (an empty
+        path would otherwise mean Blender's current folder)."""
+        if not self.frames_dir.strip():
+            raise ValueError("Frames: choose the folder of video frames (Track Video makes one)")
+        frames_dir = Path(bpy.path.abspath(self.frames_dir))
+        tracking = self.tracking.strip()
+        if not tracking and (frames_dir.parent / TRACKING_FILE).is_file():
+            tracking = str(frames_dir.parent / TRACKING_FILE)  # the tracker's own folder
+        if not tracking:
+            raise ValueError(f"Tracking: choose the tracking file of {frames_dir}")
+        if not self.out_dir.strip():
+            raise ValueError("Output: choose a folder for the run (it is created)")
+        return str(frames_dir), bpy.path.abspath(tracking), bpy.path.abspath(self.out_dir)
+
+    def remember(self) -> None:
+        """The fields the user set, for the next time the dialog opens."""
+        names = (*REMEMBERED, *OVERRIDABLE)
+        STATE.dialog_fields[DIALOG_KEY] = {
+            name: getattr(self, name) for name in names if self.properties.is_property_set(name)
+        }
 
     def overrides(self) -> dict:
         """The fields the user (or a script) set; the rest come from the base config."""

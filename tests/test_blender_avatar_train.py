@@ -4,6 +4,7 @@ onto the head; a cancelled run stops on SIGINT with a saved checkpoint; the log 
 import importlib
 import json
 import time
+from pathlib import Path
 
 import bpy
 import numpy as np
@@ -37,7 +38,14 @@ def setup(tmp_path_factory):
     config = folder / "tiny.json"
     config.write_text(json.dumps(TINY))
     module = importlib.import_module("archhead_blender.training")
-    return {"folder": folder, "head": head, "video": video, "config": config, "ops": module}
+    return {
+        "folder": folder,
+        "head": head,
+        "video": video,
+        "config": config,
+        "ops": module,
+        "addon": addon,
+    }
 
 
 def test_training_operator_runs_and_loads_the_avatar(setup):
@@ -97,3 +105,65 @@ def test_cancel_stops_cleanly_with_a_checkpoint(setup):
     assert 1 <= run.step < 200
     assert '"event": "interrupted"' in (out / "train.log").read_text()
     assert read_checkpoint(out / "avatar.npz").config.s_max == 64
+
+
+def tracked_folder(setup) -> Path:
+    """What Track Video writes: frames/ beside tracking.npz."""
+    import shutil
+
+    data = setup["folder"] / "tracked"
+    if not data.exists():
+        shutil.copytree(setup["video"], data / "frames")
+        shutil.copy(setup["folder"] / "track.npz", data / "tracking.npz")
+    return data
+
+
+def test_train_dialog_names_empty_fields_and_keeps_what_was_typed(setup):
+    state = importlib.import_module("archhead_blender.state").STATE
+    bpy.context.view_layer.objects.active = setup["head"]
+    with pytest.raises(RuntimeError, match="Frames: choose the folder"):
+        bpy.ops.archhead.train_avatar(out_dir=str(setup["folder"] / "x"))
+    data = tracked_folder(setup)
+    with pytest.raises(RuntimeError, match="Output: choose a folder"):
+        bpy.ops.archhead.train_avatar(frames_dir=str(data / "frames"), preset="demo")
+    assert not (setup["folder"] / "x").exists()
+    kept = state.dialog_fields["train_avatar"]
+    assert kept["frames_dir"] == str(data / "frames") and kept["preset"] == "demo"
+    assert "out_dir" not in kept and "tracking" not in kept  # what the user typed, only
+
+
+def test_a_tracked_folder_trains_into_a_new_output_folder_with_a_preset(setup):
+    """The tracking is found beside frames/, the output folder is created, and the preset's
+    values train where the fields were left alone."""
+    from archhead_addon.train.config import config_data
+
+    data = tracked_folder(setup)
+    out = setup["folder"] / "new" / "run"
+    bpy.context.view_layer.objects.active = setup["head"]
+    result = bpy.ops.archhead.train_avatar(
+        frames_dir=str(data / "frames"),
+        out_dir=str(out),
+        preset="demo",
+        resolution=32,
+        stage1_steps=2,
+        stage2_steps=1,
+    )
+    assert result == {"FINISHED"}
+    request = json.loads((out / "train_request.json").read_text())
+    demo = config_data("demo")
+    assert request == {**demo, "resolution": 32, "stage1_steps": 2, "stage2_steps": 1}
+    assert read_checkpoint(out / "avatar.npz").config.s_max == demo["avatar"]["s_max"]
+    assert not (out / "data").exists()  # the tracked folder was used as it is
+
+
+def test_train_dialog_fills_in_the_head_tracked_by_track_video(setup):
+    module = importlib.import_module(f"{setup['addon'].__name__}.operators.train_operator")
+    data = tracked_folder(setup)
+    head = setup["head"]
+    before = head.get("archhead_sequence")
+    head["archhead_sequence"] = str(data / "tracking.npz")
+    try:
+        assert module._tracked_folder(head) == data
+    finally:
+        head["archhead_sequence"] = before
+    assert module._tracked_folder(head) is None  # imported from elsewhere: nothing to guess
