@@ -18,7 +18,8 @@ from archhead_addon.flame.model import PART_OTHER
 from archhead_addon.io.errors import InputError, InputWarning
 from archhead_addon.sequences import write_canonical
 from archhead_addon.sequences.demo import demo_sequence
-from archhead_addon.train.dataset import FrameDataset, split_point, target_size
+from archhead_addon.train.config import TrainConfig
+from archhead_addon.train.dataset import FrameDataset, split_indices, split_point, target_size
 from archhead_addon.train.parts_mask import parts_mask, rasterize
 
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
@@ -63,6 +64,18 @@ def centroid(image):
 
 def test_split_point_is_first_ninety_percent():
     assert [split_point(n) for n in (1, 2, 6, 10, 11, 300)] == [1, 1, 5, 9, 9, 270]
+    assert split_indices(11) == (list(range(9)), [9, 10])
+
+
+def test_interleaved_holdout_tests_every_tenth_frame():
+    train, test = split_indices(35, "interleaved")
+    assert test == [4, 14, 24, 34] and len(train) == 31 and not set(train) & set(test)
+    assert split_indices(8, "interleaved") == ([0, 1, 2, 3, 5, 6, 7], [4])
+    assert split_indices(4, "interleaved") == split_indices(4)  # too short to interleave
+    with pytest.raises(ValueError, match="holdout"):
+        split_indices(20, "random")
+    with pytest.raises(ValueError, match="holdout"):
+        TrainConfig(holdout="first")
 
 
 def test_target_size():

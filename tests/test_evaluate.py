@@ -2,7 +2,9 @@
 (tables, plot, LOD montage, cross-identity reenactment through the driver's own camera)."""
 
 import csv
+import json
 import math
+import shutil
 from dataclasses import replace
 
 import numpy as np
@@ -201,3 +203,20 @@ def test_training_frames_can_be_scored_evenly_spread(subject, avatar_file, tmp_p
     row = next(csv.DictReader((out / "metrics.csv").open()))
     expected = np.mean([10 * math.log10(1 / e) for e in errors])
     assert float(row["psnr"]) == pytest.approx(expected, rel=1e-4)
+
+
+def test_the_run_s_holdout_picks_the_test_frames(subject, avatar_file, tmp_path):
+    """A run trained with "holdout": "interleaved" is scored on every tenth frame, from the
+    fifth: here frame 4 of 8, not the last."""
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(avatar_file, run / "avatar.npz")
+    (run / "config.json").write_text(json.dumps({"resolution": SIZE, "holdout": "interleaved"}))
+    out = tmp_path / "eval"
+    args = ["--avatar", str(run / "avatar.npz"), "--data", str(subject), "--out", str(out)]
+    assert main([*args, "--lods", "0", "--precisions", "fp32"]) == 0
+    assert "1 test frames" in (out / "metrics.md").read_text()
+    everything = FrameDataset(subject, SIZE, load_model(), split="all")
+    truth = np.asarray(Image.open(out / "lods.png"))[:, :SIZE].astype(np.float32) / 255
+    assert np.abs(truth - everything[4]["image"]).max() <= 1 / 255 + 1e-6
+    assert np.abs(truth - everything[7]["image"]).max() > 0.05

@@ -62,15 +62,29 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def run_config(args) -> dict:
+    """The training run's config.json beside the avatar ({} when there is none)."""
+    config = RunFolder(args.avatar.parent).config
+    return json.loads(config.read_text()) if config.is_file() else {}
+
+
 def run_resolution(args) -> int:
     if args.resolution is not None:
         return args.resolution
-    config = RunFolder(args.avatar.parent).config
-    if not config.is_file():
+    config = run_config(args)
+    if "resolution" not in config:
         raise InputError(
-            args.avatar.parent, None, f"no {config.name} of a training run here: pass --resolution"
+            args.avatar.parent,
+            None,
+            f"no {RunFolder(args.avatar.parent).config.name} of a training run here: pass "
+            "--resolution",
         )
-    return int(json.loads(config.read_text())["resolution"])
+    return int(config["resolution"])
+
+
+def run_holdout(args) -> str:
+    """Which frames the run held out for testing (the run's config; the paper's default)."""
+    return run_config(args).get("holdout", "last")
 
 
 def evaluate(args) -> int:
@@ -87,7 +101,9 @@ def evaluate(args) -> int:
 
     model = load_model(args.flame)
     runtime = AvatarRuntime.load(args.avatar, model)
-    test = FrameDataset(args.data, run_resolution(args), model, split=args.split)
+    test = FrameDataset(
+        args.data, run_resolution(args), model, split=args.split, holdout=run_holdout(args)
+    )
     count = len(test) if args.frames is None else min(max(args.frames, 1), len(test))
     frames = [test[int(i)] for i in np.linspace(0, len(test) - 1, count).round()]
     first = {}

@@ -107,7 +107,9 @@ def setup(args, progress: Progress) -> Trainer:
         torch.set_num_threads(config.threads)
     device = loop.resolve_device(config.device)
     model = load_model(args.flame)
-    dataset = FrameDataset(args.data, config.resolution, model, split="train")
+    dataset = FrameDataset(
+        args.data, config.resolution, model, split="train", holdout=config.holdout
+    )
     frames = loop.frames_on_device(dataset, device)
     if state is not None:
         trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background, device)

@@ -17,6 +17,8 @@ from pathlib import Path
 
 from ..avatar.config import AvatarConfig
 
+HOLDOUTS = ("last", "interleaved")  # which frames test (dataset.split_indices)
+
 CONFIG_DIR = Path(__file__).parent / "configs"
 PRESETS = ("cpu", "cpu_short", "gpu_paper", "demo")
 # Where every training starts unless told otherwise: the command line and Blender's Train
@@ -59,6 +61,7 @@ class TrainConfig:
     seed: int = 0
     threads: int = 0  # CPU threads of torch and the splat kernel; 0 = their default (all)
     device: str = "auto"  # "auto" (CUDA when present), "cpu" or "cuda"
+    holdout: str = "last"  # the test frames (HOLDOUTS): the last 10 %, or every tenth
 
     def __post_init__(self):
         if self.resolution < 32:
@@ -71,6 +74,8 @@ class TrainConfig:
             raise ValueError(f"lr_final_ratio must be in (0, 1], got {self.lr_final_ratio}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
+        if self.holdout not in HOLDOUTS:
+            raise ValueError(f"holdout must be one of {HOLDOUTS}, got {self.holdout!r}")
         self.avatar_config(n_expr=1)  # reject unknown or invalid avatar fields now
 
     @property

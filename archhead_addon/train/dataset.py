@@ -29,7 +29,10 @@ Folder layout (DATA):
 - B: the parts/ files when given (resized, soft at the edges); else the model's eye and
   mouth labels rasterized with occlusion in each frame (`parts_mask`).
 - Split (paper 4.1): the first 90 % of frames train, the last 10 % test (at least one each
-  when there are two or more frames); `split="all"` gives every frame.
+  when there are two or more frames); `split="all"` gives every frame. With
+  `holdout="interleaved"` every tenth frame tests instead (frames 4, 14, ...): test poses
+  and expressions then lie among the training ones, which tells how well an avatar
+  generalises within what it saw from how well it extrapolates to the clip's end.
 
 `FrameDataset(...)[i]` is a dict of float32 arrays: `image` (H,W,3) in [0,1], `mask` (H,W),
 `parts` (H,W), `K` (3,3), `w2c` (4,4), `codes` {shape, expr, jaw, neck, eyes, rotation,
@@ -49,6 +52,7 @@ from ..flame.model import FlameModel
 from ..io.errors import InputError, warn_input
 from ..sequences import Sequence, read_sequence
 from ..sequences.common import numbered_files
+from .config import HOLDOUTS
 from .images import IMAGE_SUFFIXES, image_size, read_image, read_mask, resize
 from .parts_mask import parts_mask
 
@@ -61,6 +65,17 @@ def split_point(n_frames: int) -> int:
     """How many leading frames train: 90 % rounded down, which leaves at least one test
     frame and, from two frames on, at least one training frame. A single frame trains."""
     return 9 * n_frames // 10 if n_frames > 1 else n_frames
+
+
+def split_indices(n_frames: int, holdout: str = "last") -> tuple[list[int], list[int]]:
+    """(train, test) frame positions for `holdout` (HOLDOUTS)."""
+    if holdout not in HOLDOUTS:
+        raise ValueError(f"holdout must be one of {HOLDOUTS}, got {holdout!r}")
+    if holdout == "last" or n_frames < 5:
+        n_train = split_point(n_frames)
+        return list(range(n_train)), list(range(n_train, n_frames))
+    test = list(range(4, n_frames, 10))
+    return sorted(set(range(n_frames)) - set(test)), test
 
 
 def target_size(resolution, source: tuple[int, int]) -> tuple[int, int]:
@@ -171,6 +186,7 @@ class FrameDataset:
         model: FlameModel,
         *,
         split: str = "train",
+        holdout: str = "last",
         tracking=None,
         background=(1.0, 1.0, 1.0),
         cache: bool = True,
@@ -207,12 +223,8 @@ class FrameDataset:
         self.source_size = source
         self.size = target_size(resolution, source)
         self.K = self._scaled_intrinsics(source)
-        n_train = split_point(len(frames))
-        self.indices = {
-            "train": range(n_train),
-            "test": range(n_train, len(frames)),
-            "all": range(len(frames)),
-        }[split]
+        train, test = split_indices(len(frames), holdout)
+        self.indices = {"train": train, "test": test, "all": list(range(len(frames)))}[split]
         if len(self.indices) == 0:
             raise InputError(
                 self.root,
@@ -220,7 +232,7 @@ class FrameDataset:
                 f"the '{split}' split of {len(frames)} frame(s) "
                 "is empty: a train/test split needs at least two frames",
             )
-        self.split = split
+        self.split, self.holdout = split, holdout
         self._cache: dict[int, dict] | None = {} if cache else None
 
     def _read_tracking(self, tracking) -> Sequence:

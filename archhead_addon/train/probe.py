@@ -142,8 +142,10 @@ def make_trainer(args):
     state["config"] = config.to_json()
     model = load_model(args.flame)
     device = torch.device("cpu")
-    train = FrameDataset(args.data, config.resolution, model, split="train")
-    test = FrameDataset(args.data, config.resolution, model, split="test")
+    train, test = (
+        FrameDataset(args.data, config.resolution, model, split=split, holdout=config.holdout)
+        for split in ("train", "test")
+    )
     frames = loop.frames_on_device(train, device)
     if args.frame is not None:
         if not 0 <= args.frame < len(frames):
