@@ -153,6 +153,10 @@ def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path
 
     montage = np.asarray(Image.open(out / "lods.png"))
     assert montage.shape == (SIZE, 6 * SIZE, 3)  # truth, then five levels
+    sheet = np.asarray(Image.open(out / "sheet.png")).astype(np.float32) / 255
+    assert sheet.shape == (len(test) * SIZE, 4 * SIZE, 3)  # test frames by truth, 0, 0.5, 1
+    assert np.abs(sheet[:SIZE, :SIZE] - item["image"]).max() <= 1 / 255 + 1e-6
+    assert np.abs(sheet[:SIZE, SIZE : 2 * SIZE] - np.clip(image, 0, 1)).max() <= 1 / 255 + 1e-6
     assert Image.open(out / "error_vs_time.png").size[0] > 500
 
     driven = sorted((out / "reenact").iterdir())
@@ -220,3 +224,16 @@ def test_the_run_s_holdout_picks_the_test_frames(subject, avatar_file, tmp_path)
     truth = np.asarray(Image.open(out / "lods.png"))[:, :SIZE].astype(np.float32) / 255
     assert np.abs(truth - everything[4]["image"]).max() <= 1 / 255 + 1e-6
     assert np.abs(truth - everything[7]["image"]).max() > 0.05
+
+
+def test_levels_are_a_list_or_a_range():
+    from archhead_addon.evaluate.__main__ import parse_args
+
+    def lods(text):
+        return parse_args(["--avatar", "a", "--data", "d", "--out", "o", "--lods", text]).lods
+
+    assert lods("0,0.5,1") == [0.0, 0.5, 1.0]
+    assert lods("0:1:0.05") == [round(0.05 * i, 6) for i in range(21)]
+    for bad in ("0:2:0.5", "1:0:0.5", "0:1:0", "a:b:c", "0,1.5"):
+        with pytest.raises(SystemExit):
+            lods(bad)

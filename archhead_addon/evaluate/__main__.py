@@ -1,12 +1,15 @@
 """Evaluate a trained avatar on its test frames (the last 10 % of DIR's frames):
 
     python -m archhead_addon.evaluate --avatar RUN/avatar.npz --data DIR --out EVAL
-        [--lods 0,0.25,0.5,0.75,1] [--precisions fp32,fp16] [--resolution N] [--flame FILE]
-        [--split test|train] [--frames N] [--drive SEQ [--drive-lod L] [--drive-frames N]]
+        [--lods 0,0.25,0.5,0.75,1 | --lods 0:1:0.05] [--precisions fp32,fp16]
+        [--resolution N] [--flame FILE] [--split test|train] [--frames N]
+        [--drive SEQ [--drive-lod L] [--drive-frames N]]
 
 Writes EVAL/metrics.csv and EVAL/metrics.md (L1, PSNR, SSIM, ST-LPIPS, Gaussian count and
 render milliseconds per LOD and precision, and the LOD 1 : LOD 0 ratios beside the paper's),
-EVAL/error_vs_time.png, and EVAL/lods.png (the first test frame: truth, then each LOD).
+EVAL/error_vs_time.png, EVAL/lods.png (the first test frame: truth, then each LOD) and
+EVAL/sheet.png (up to SHEET_ROWS test frames spread over the split, each a row: truth, then
+the levels of SHEET_LODS that were evaluated).
 --drive renders the avatar driven by another tracked sequence (any supported format) into
 EVAL/reenact/ (cross-identity reenactment). The resolution defaults to the training run's
 (RUN/config.json). `--split train` scores the frames the avatar was fitted to (how well it
@@ -26,9 +29,20 @@ from ..io.cli import run_command
 from ..io.errors import InputError
 from ..train.run_folder import RunFolder
 
+SHEET_ROWS, SHEET_LODS = 4, (0.0, 0.5, 1.0)  # EVAL/sheet.png: test frames by levels
+
 
 def _lods(text: str) -> list[float]:
-    lods = [float(x) for x in text.split(",") if x.strip()]
+    """Comma-separated levels, or FIRST:LAST:STEP (0:1:0.05 is the 21 levels 0, 0.05, ...)."""
+    try:
+        if ":" in text:
+            first, last, step = (float(x) for x in text.split(":"))
+            count = round((last - first) / step) + 1 if step > 0 else 0
+            lods = [round(first + i * step, 6) for i in range(count)]
+        else:
+            lods = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        lods = []
     if not lods or any(not 0 <= lod <= 1 for lod in lods):
         raise argparse.ArgumentTypeError(f"levels of detail in [0, 1], got {text!r}")
     return lods
@@ -107,10 +121,16 @@ def evaluate(args) -> int:
     count = len(test) if args.frames is None else min(max(args.frames, 1), len(test))
     frames = [test[int(i)] for i in np.linspace(0, len(test) - 1, count).round()]
     first = {}
+    sheet_rows = sorted({round(i) for i in np.linspace(0, len(frames) - 1, SHEET_ROWS)})
+    sheet = {}
 
     def keep_first(lod, precision, index, rgb):
-        if index == 0 and precision == args.precisions[0]:
+        if precision != args.precisions[0]:
+            return
+        if index == 0:
             first[lod] = rgb
+        if index in sheet_rows and lod in SHEET_LODS:
+            sheet[index, lod] = rgb
 
     results = evaluate_lods(
         runtime,
@@ -129,6 +149,12 @@ def evaluate(args) -> int:
     write_tables(args.out, results, title)
     plot_error_vs_time(args.out / "error_vs_time.png", results, title)
     to_png(args.out / "lods.png", np.concatenate([frames[0]["image"], *first.values()], 1))
+    columns = [lod for lod in SHEET_LODS if lod in args.lods]
+    rows = [
+        np.concatenate([frames[i]["image"], *(sheet[i, lod] for lod in columns)], 1)
+        for i in sheet_rows
+    ]
+    to_png(args.out / "sheet.png", np.concatenate(rows, 0))
     print((args.out / "metrics.md").read_text())
     if args.drive is not None:
         driver = read_sequence(args.drive)
