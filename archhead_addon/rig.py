@@ -54,13 +54,16 @@ class RigAnimation:
     bone_locs: np.ndarray  # (T,5,3) pose-bone locations
     pose_feature: np.ndarray  # (T,36) the pose correctives' values, vec(R_i - I), FLAME order
     identity_shape: np.ndarray  # (S,)
+    # The expression components (columns of expr) the sequence moves: the only ones given a
+    # shape key; the others stay zero on every frame, so their keys would only cost memory.
+    used_expr: np.ndarray  # (U,) int
 
 
 def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnimation:
     """The rig's rest state and per-frame channels for a sequence fitted to the model."""
     n_expr = model.n_expr if n_expr is None else min(n_expr, model.n_expr)
     used = np.flatnonzero(np.any(np.asarray(seq.expr)[:, :n_expr] != 0, axis=0))
-    n_expr = int(used[-1]) + 1 if len(used) else 0  # components never used get no shape key
+    n_expr = int(used[-1]) + 1 if len(used) else 0  # trailing unused components: not even kept
     shape = np.asarray(seq.shape, dtype=np.float64)
     identity = shape[0] if shape.ndim == 2 else shape
     n_s = identity.shape[0]
@@ -88,6 +91,7 @@ def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnima
         bone_locs=locs,
         pose_feature=(rot[:, 1:] - np.eye(3)).reshape(len(rot), -1),
         identity_shape=identity,
+        used_expr=used,
     )
 
 

@@ -202,7 +202,7 @@ def _skin(head, arm_obj, model):
 def _shape_keys(head, rig, options):
     basis = head.shape_key_add(name="Basis", from_mix=False)
     rest = rig.rest_vertices
-    keys = [(f"expr_{i:03d}", d) for i, d in enumerate(rig.expr_deltas)]
+    keys = [(f"expr_{i:03d}", rig.expr_deltas[i]) for i in rig.used_expr]
     if options.pose_correctives != "NONE":
         keys += [
             (name, d)
@@ -246,7 +246,7 @@ def _animate_bones(arm_obj, rig, frames, created):
 def _animate_shape_keys(head, rig, frames, correctives: bool, created):
     writer = ActionWriter(head.data.shape_keys, f"{head.name}_shape_keys")
     created.add(writer.action)
-    for i in range(rig.expr.shape[1]):
+    for i in rig.used_expr:
         writer.write(f'key_blocks["expr_{i:03d}"].value', frames, rig.expr[:, i])
     if correctives:
         for k, (name, _, _) in enumerate(pose_corrective_names()):

@@ -184,3 +184,25 @@ def test_keyframed_correctives_equally_exact(imported, tmp_path):
             for k in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
         }
         assert np.abs(_evaluated_vertices(head, i + 1) - forward(model, **codes)[0]).max() <= 1e-5
+
+
+def test_expression_components_never_used_get_no_shape_key(imported, tmp_path):
+    """Unused components in the middle of the range are left out too; the mesh stays exact."""
+    _, model, seq, _ = imported
+    expr = seq.expr.copy()
+    expr[:, [0, 5, 6, 40]] = 0.0
+    expr[:, 60:] = 0.0
+    sparse = Sequence(**{**seq.__dict__, "expr": expr})
+    path = tmp_path / "sparse.npz"
+    write_canonical(sparse, path)
+    assert bpy.ops.archhead.import_sequence(filepath=str(path), use_camera=False) == {"FINISHED"}
+    head = bpy.data.objects["sparse"]
+    names = {k.name for k in head.data.shape_keys.key_blocks if k.name.startswith("expr_")}
+    assert names == {f"expr_{i:03d}" for i in range(60) if i not in (0, 5, 6, 40)}
+    for i in (0, 1):
+        codes = {
+            k: getattr(sparse, k)[i]
+            for k in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
+        }
+        got = _evaluated_vertices(head, i + 1)
+        assert np.abs(got - forward(model, **codes)[0]).max() <= 1e-5
