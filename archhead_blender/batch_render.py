@@ -13,12 +13,12 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from archhead_addon.avatar.decode_cache import SplatFrame
 from archhead_addon.avatar.frame_selection import contiguous_runs
 from archhead_addon.camera import BlenderCamera
 from archhead_addon.export.transform import transform_frame
 from archhead_addon.io.atomic import write_bytes_atomic
-from archhead_addon.splat.blender_render import render_frame_from_blender_camera
+from archhead_addon.splat.blender_render import render_from_blender_camera
+from archhead_addon.splat.frame import SplatFrame
 from archhead_addon.synthetic.png import encode_png
 
 from .avatar_props import is_avatar
@@ -113,7 +113,7 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
         _, splat = frame_to_show(obj, scene, depsgraph)
         parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
     camera = blender_camera(scene)
-    raster = render_frame_from_blender_camera(
+    raster = render_from_blender_camera(
         SplatFrame.concatenate(parts),
         camera,
         np.array(scene.camera.evaluated_get(depsgraph).matrix_world),

@@ -17,10 +17,10 @@ from __future__ import annotations
 import bpy
 from bpy.app.handlers import persistent
 
-from archhead_addon.avatar.decode_cache import SplatFrame
 from archhead_addon.avatar.frame_selection import held_frame
 from archhead_addon.avatar.point_attributes import point_attributes
 from archhead_addon.io.errors import InputError
+from archhead_addon.splat.frame import SplatFrame
 
 from .avatar_props import is_avatar
 from .avatar_session import forget_shown, session

@@ -9,13 +9,7 @@ import pytest
 from archhead_addon.avatar.checkpoint_format import AvatarCheckpoint
 from archhead_addon.avatar.compat import HeadFacts, check_head
 from archhead_addon.avatar.config import AvatarConfig
-from archhead_addon.avatar.decode_cache import (
-    MIN_OPACITY,
-    DiskCache,
-    MemoryCache,
-    SplatFrame,
-    frame_key,
-)
+from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.frame_selection import (
     contiguous_runs,
     frames_to_decode,
@@ -30,6 +24,7 @@ from archhead_addon.flame.teeth import add_teeth
 from archhead_addon.rig import rig_animation
 from archhead_addon.rotations import quaternion_to_matrix
 from archhead_addon.sequences.demo import demo_sequence
+from archhead_addon.splat.frame import MIN_OPACITY, SplatFrame
 
 
 @pytest.fixture(scope="module")

@@ -15,10 +15,10 @@ from bpy_extras.anim_utils import action_get_channelbag_for_slot
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
 
-from archhead_addon.avatar.decode_cache import SplatFrame
 from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.camera import FLAME_TO_BLENDER
 from archhead_addon.export.ply import read_ply, rows_to_gaussians
+from archhead_addon.splat.frame import SplatFrame
 
 pytestmark = pytest.mark.blender
 

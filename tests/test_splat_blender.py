@@ -10,11 +10,12 @@ from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
 
 from archhead_addon.camera import FLAME_TO_BLENDER, BlenderCamera
-from archhead_addon.splat import rasterization
+from archhead_addon.splat import rasterize_frame
 from archhead_addon.splat.blender_render import (
     blender_camera_to_opencv,
     render_from_blender_camera,
 )
+from archhead_addon.splat.frame import SplatFrame
 
 pytestmark = pytest.mark.blender
 
@@ -144,15 +145,14 @@ def test_rendered_gaussian_lands_where_blender_projects_it(cam):
     viewmat, K = blender_camera_to_opencv(cam, matrix_world)
     depth = (viewmat[:3, :3] @ mean_flame + viewmat[:3, 3])[2]
     sigma = 2.0 * depth / K[0, 0]  # about 2 px
-    raster = render_from_blender_camera(
-        mean_flame[None],
-        np.array([[1.0, 0, 0, 0]]),
-        np.full((1, 3), np.log(sigma)),
-        np.array([3.0]),
-        np.array([[1.0, 1.0, 1.0]]),
-        cam,
-        matrix_world,
+    frame = SplatFrame(
+        means=mean_flame[None],
+        log_scales=np.full((1, 3), np.log(sigma)),
+        quats=np.array([[1.0, 0, 0, 0]]),
+        opacity_logits=np.array([3.0]),
+        sh=np.array([[1.0, 1.0, 1.0]]),
     )
+    raster = render_from_blender_camera(frame, cam, matrix_world)
     ys, xs = np.mgrid[: cam.resolution_y, : cam.resolution_x] + 0.5
     w = raster.alpha
     centroid = np.array([(w * xs).sum() / w.sum(), (w * ys).sum() / w.sum()])
@@ -173,12 +173,13 @@ def test_blender_render_with_sh_matches_rasterization():
     log_scales = rng.normal(np.log(0.01), 0.3, (n, 3))
     logits = rng.normal(1, 1, n)
     sh = rng.normal(0, 0.3, (n, 16, 3))
-    ours = render_from_blender_camera(
-        means, quats, log_scales, logits, sh, cam, matrix_world, background=(0.1, 0.1, 0.1)
+    frame = SplatFrame(
+        means=means, log_scales=log_scales, quats=quats, opacity_logits=logits, sh=sh
     )
+    ours = render_from_blender_camera(frame, cam, matrix_world, background=(0.1, 0.1, 0.1))
     viewmat, K = blender_camera_to_opencv(cam, matrix_world)
-    ref = rasterization(
-        *(torch.tensor(a, dtype=torch.float32) for a in (means, quats, log_scales, logits, sh)),
+    ref = rasterize_frame(
+        frame.map(lambda a: torch.tensor(a, dtype=torch.float32)),
         viewmat,
         K,
         cam.resolution_x,
@@ -212,19 +213,18 @@ def test_object_transform_folds_into_the_view():
     obj = np.eye(4)
     obj[:3, :3], obj[:3, 3] = scale * R, (0.02, -0.03, 0.1)
 
-    ours = render_from_blender_camera(
-        means, quats, log_scales, logits, colors, cam, camera_matrix_world, obj
+    local = SplatFrame(
+        means=means, log_scales=log_scales, quats=quats, opacity_logits=logits, sh=colors
     )
-    world = render_from_blender_camera(
-        means @ obj[:3, :3].T + obj[:3, 3],
-        matrix_to_quaternion(R @ quaternion_to_matrix(quats)),
-        log_scales + np.log(scale),
-        logits,
-        colors,
-        cam,
-        camera_matrix_world,
-        np.eye(4),
+    moved = SplatFrame(
+        means=means @ obj[:3, :3].T + obj[:3, 3],
+        log_scales=log_scales + np.log(scale),
+        quats=matrix_to_quaternion(R @ quaternion_to_matrix(quats)),
+        opacity_logits=logits,
+        sh=colors,
     )
+    ours = render_from_blender_camera(local, cam, camera_matrix_world, obj)
+    world = render_from_blender_camera(moved, cam, camera_matrix_world, np.eye(4))
     assert ours.alpha.max() > 0.9
     np.testing.assert_allclose(ours.rgb, world.rgb, atol=1e-5)
     np.testing.assert_allclose(ours.alpha, world.alpha, atol=1e-5)

@@ -105,7 +105,7 @@ def test_numpy_path_does_not_import_torch(tmp_path):
         import numpy as np
         from archhead_addon.splat import blender_render, kernel, scenes
         s = scenes.face_scene(200, 32, 32)
-        r = kernel.render(*s.gaussians(), kernel.RasterSettings(s.viewmat, s.K, 32, 32))
+        r = kernel.render_frame(s.gaussians, s.settings())
         assert r.alpha.max() > 0.9
         assert "torch" not in sys.modules, "torch was imported"
         print("ok")

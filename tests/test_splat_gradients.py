@@ -5,17 +5,29 @@ Metric, per parameter group: ||g - g_ref|| / ||g_ref|| <= 1e-4, and on the domin
 <= 1e-4 (the group norm is the fair summary; the elementwise check catches a wrong entry
 hiding under large ones). The float32 kernel lands near 1e-6 on both."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
 
-from archhead_addon.splat import rasterization, scenes
+from archhead_addon.splat import rasterize_frame, scenes
 from archhead_addon.splat.autograd import splat_cpu
-from archhead_addon.splat.kernel import RasterSettings
+from archhead_addon.splat.frame import FIELDS
 from archhead_addon.splat.reference import render_reference
 from archhead_addon.splat.sh import sh_to_rgb_torch
 
-NAMES = ("means", "quats", "log_scales", "opacity_logits", "colors")
+
+def leaf(a, dtype=torch.float32) -> torch.Tensor:
+    return torch.tensor(a, dtype=dtype, requires_grad=True)
+
+
+def leaf64(a) -> torch.Tensor:
+    return leaf(a, torch.float64)
+
+
+def grads(frame) -> dict[str, torch.Tensor]:
+    return {name: t.grad.double() for name, t in frame.arrays().items()}
 
 
 def loss_weights(height, width, seed):
@@ -30,24 +42,28 @@ def weighted_loss(rgb, alpha, depth, weights):
 
 
 def kernel_grads(scene, weights, **kw):
-    params = [torch.tensor(a, requires_grad=True) for a in scene.gaussians()]
-    settings = RasterSettings(scene.viewmat, scene.K, scene.width, scene.height, **kw)
-    out = splat_cpu(*params, settings)
+    params = scene.gaussians.map(leaf)
+    out = splat_cpu(params, scene.settings(**kw))
     weighted_loss(*(o.double() for o in out), weights).backward()
-    return [p.grad.double() for p in params]
+    return grads(params)
+
+
+def reference_image(scene, frame, **kw):
+    return render_reference(
+        frame, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width, scene.height, **kw
+    )
 
 
 def reference_grads(scene, weights, **kw):
-    params = [torch.tensor(a, dtype=torch.float64, requires_grad=True) for a in scene.gaussians()]
-    out = render_reference(
-        *params, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width, scene.height, **kw
-    )
-    weighted_loss(*out, weights).backward()
-    return [p.grad for p in params]
+    params = scene.gaussians.map(leaf64)
+    weighted_loss(*reference_image(scene, params, **kw), weights).backward()
+    return grads(params)
 
 
-def assert_grads_match(ours, ref, names=NAMES):
-    for name, g, r in zip(names, ours, ref, strict=True):
+def assert_grads_match(ours, ref):
+    assert list(ours) == list(ref) == list(FIELDS)
+    for name in FIELDS:
+        g, r = ours[name], ref[name]
         assert torch.isfinite(g).all(), name
         scale = r.norm()
         assert scale > 0, f"{name}: reference gradient is zero; the test is vacuous"
@@ -88,41 +104,28 @@ def test_gradients_through_sh_and_expected_depth():
     sh = rng.normal(0, 0.4, (30, 16, 3))
     w_rgb, w_alpha, w_depth = loss_weights(20, 24, 4)
 
-    ours = [torch.tensor(a, requires_grad=True) for a in scene.gaussians()[:4]]
-    ours.append(torch.tensor(sh, dtype=torch.float32, requires_grad=True))
-    out = rasterization(*ours, scene.viewmat, scene.K, scene.width, scene.height)
+    with_sh = replace(scene.gaussians, sh=sh)
+    ours = with_sh.map(leaf)
+    out = rasterize_frame(ours, scene.viewmat, scene.K, scene.width, scene.height)
     loss = ((out.rgb.double() * w_rgb).sum() + (out.alpha[..., 0].double() * w_alpha).sum()
             + (out.depth[..., 0].double() * w_depth).sum())  # fmt: skip
     loss.backward()
 
-    ref = [torch.tensor(a, dtype=torch.float64, requires_grad=True) for a in scene.gaussians()[:4]]
-    ref.append(torch.tensor(sh, dtype=torch.float64, requires_grad=True))
+    ref = with_sh.map(leaf64)
     centre = torch.linalg.inv(torch.tensor(scene.viewmat))[:3, 3]
-    colors = sh_to_rgb_torch(3, ref[0] - centre, ref[4])
-    img = render_reference(
-        *ref[:4],
-        colors,
-        torch.tensor(scene.viewmat),
-        torch.tensor(scene.K),
-        scene.width,
-        scene.height,
-    )
+    colors = sh_to_rgb_torch(3, ref.means - centre, ref.sh)
+    img = reference_image(scene, replace(ref, sh=colors))
     depth = img.depth / img.alpha.clamp_min(1e-10)
     ((img.rgb * w_rgb).sum() + (img.alpha * w_alpha).sum() + (depth * w_depth).sum()).backward()
-    assert_grads_match(
-        [p.grad.double() for p in ours], [p.grad for p in ref], names=NAMES[:4] + ("sh",)
-    )
+    assert_grads_match(grads(ours), grads(ref))
 
 
 def test_gradients_when_only_rgb_is_used():
     """alpha and depth unused: autograd hands the kernel no gradient for them (None)."""
     scene = scenes.random_scene(40, width=32, height=24, seed=21)
     w_rgb, _, _ = loss_weights(24, 32, 21)
-    ours = [torch.tensor(a, requires_grad=True) for a in scene.gaussians()]
-    settings = RasterSettings(scene.viewmat, scene.K, scene.width, scene.height)
-    rgb, _, _ = splat_cpu(*ours, settings)
+    ours = scene.gaussians.map(leaf)
+    rgb, _, _ = splat_cpu(ours, scene.settings())
     (rgb.double() * w_rgb).sum().backward()
     no_weight = torch.zeros(24, 32)
-    assert_grads_match(
-        [p.grad.double() for p in ours], reference_grads(scene, (w_rgb, no_weight, no_weight))
-    )
+    assert_grads_match(grads(ours), reference_grads(scene, (w_rgb, no_weight, no_weight)))

@@ -1,11 +1,14 @@
 """The 3DGS numerics rules of the CPU kernel, one test each, on scenes small enough to
 predict by hand; plus validation, degenerate inputs and thread-count determinism."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
 
 from archhead_addon.splat import kernel, rasterization, scenes
+from archhead_addon.splat.frame import FIELDS, SplatFrame
 from archhead_addon.splat.reference import render_reference
 
 FOCAL = 10.0
@@ -25,9 +28,13 @@ def gaussians(means, log_scales=-30.0, logits=0.0, colors=(1.0, 0.5, 0.25), quat
         return np.broadcast_to(np.asarray(x, np.float64), (n, k)).copy()
 
     logits = np.broadcast_to(np.asarray(logits, np.float64), (n,))
-    return kernel.Gaussians.checked(
-        means, rows(quats, 4), rows(log_scales, 3), logits, rows(colors, 3)
-    )
+    return SplatFrame(
+        means=means,
+        log_scales=rows(log_scales, 3),
+        quats=rows(quats, 4),
+        opacity_logits=logits,
+        sh=rows(colors, 3),
+    ).checked()
 
 
 def render(g, width=5, height=5, cam=None, **kw):
@@ -37,9 +44,10 @@ def render(g, width=5, height=5, cam=None, **kw):
 
 
 def reference(g, width, height, cam, **kw):
-    t = [torch.tensor(a, dtype=torch.float64) for a in g]
     viewmat, K = (torch.tensor(a) for a in cam)
-    return render_reference(*t, viewmat, K, width, height, **kw)
+    return render_reference(
+        g.map(lambda a: torch.tensor(a, dtype=torch.float64)), viewmat, K, width, height, **kw
+    )
 
 
 def assert_matches_reference(g, width, height, cam, **kw):
@@ -122,7 +130,7 @@ def test_pixel_stops_below_transmittance_1e_4():
     g_rgb = np.zeros((5, 5, 3))
     g_rgb[2, 2] = 1.0
     grads = kernel.backward(ctx, g_rgb)
-    assert grads.colors[:3].all() and not grads.colors[3:].any()  # stopped: no gradient
+    assert grads.sh[:3].all() and not grads.sh[3:].any()  # stopped: no gradient
     assert_matches_reference(g, 5, 5, camera())
 
 
@@ -143,7 +151,7 @@ def test_gaussians_behind_or_at_the_camera_centre():
     (rgb, alpha, depth), ctx = render(g, background=(0.1, 0.2, 0.3))
     assert not alpha.any() and not depth.any()
     np.testing.assert_array_equal(rgb, np.broadcast_to(np.float32([0.1, 0.2, 0.3]), rgb.shape))
-    for grad in backward_ones(ctx):
+    for grad in backward_ones(ctx).arrays().values():
         assert np.isfinite(grad).all() and not grad.any()
 
 
@@ -159,7 +167,8 @@ def test_extreme_scales(log_scale):
         np.testing.assert_allclose(alpha, o, atol=1e-6)
     else:  # a vanishing one is the dilation kernel alone
         assert alpha[2, 3] == pytest.approx(o * np.exp(-0.5 / 0.3), abs=1e-6)
-    assert all(np.isfinite(x).all() for x in (rgb, alpha, depth, *backward_ones(ctx)))
+    grads = backward_ones(ctx).arrays().values()
+    assert all(np.isfinite(x).all() for x in (rgb, alpha, depth, *grads))
     assert_matches_reference(g, 5, 5, camera())
 
 
@@ -175,7 +184,7 @@ def test_scale_ratio_1e4():
     )
     (_, alpha, _), ctx = render(g, 9, 9, camera(9, 9))
     assert alpha.max() > 0.5
-    assert all(np.isfinite(x).all() for x in backward_ones(ctx))
+    assert all(np.isfinite(x).all() for x in backward_ones(ctx).arrays().values())
     assert_matches_reference(g, 9, 9, camera(9, 9))
 
 
@@ -186,7 +195,7 @@ def test_zero_quaternion_is_the_identity():
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
     grads = backward_ones(ctx)
-    assert all(np.isfinite(x).all() for x in grads) and grads.log_scales.any()
+    assert all(np.isfinite(x).all() for x in grads.arrays().values()) and grads.log_scales.any()
 
 
 def test_opacity_logits_saturate():
@@ -201,24 +210,24 @@ def test_opacity_logits_saturate():
 
 
 def test_no_gaussians():
-    g = kernel.Gaussians.checked(
-        np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))
-    )
+    g = gaussians(np.zeros((0, 3)))
     (rgb, alpha, depth), ctx = render(g, 7, 3, camera(7, 3), background=(0.5, 0.25, 1.0))
     assert (rgb == np.float32([0.5, 0.25, 1.0])).all() and not alpha.any() and not depth.any()
-    assert [x.shape for x in backward_ones(ctx)] == [(0, 3), (0, 4), (0, 3), (0,), (0, 3)]
+    shapes = {name: x.shape for name, x in backward_ones(ctx).arrays().items()}
+    assert shapes == {"means": (0, 3), "log_scales": (0, 3), "quats": (0, 4),
+                      "opacity_logits": (0,), "sh": (0, 3)}  # fmt: skip
 
 
 def test_one_by_one_image():
     scene = scenes.random_scene(20, width=1, height=1, seed=3)
-    g = kernel.Gaussians.checked(*scene.gaussians())
+    g = scene.gaussians.checked()
     assert_matches_reference(g, 1, 1, (scene.viewmat, scene.K), background=(0.2, 0.2, 0.2))
 
 
 def test_non_square_image():
     width, height = 37, 13
     scene = scenes.random_scene(60, width=width, height=height, seed=5)
-    g = kernel.Gaussians.checked(*scene.gaussians())
+    g = scene.gaussians.checked()
     assert_matches_reference(g, width, height, (scene.viewmat, scene.K))
 
 
@@ -231,31 +240,39 @@ def test_off_centre_principal_point():
     (_, alpha, _), _ = render(gaussians(x), width, height, cam)
     assert np.unravel_index(alpha.argmax(), alpha.shape) == (int(v), int(u))
     scene = scenes.random_scene(60, width=width, height=height, seed=6)
-    g = kernel.Gaussians.checked(*scene.gaussians())
+    g = scene.gaussians.checked()
     assert_matches_reference(g, width, height, cam)
 
 
-@pytest.mark.parametrize("name", ["means", "quats", "log_scales", "opacity_logits", "colors"])
+@pytest.mark.parametrize("name", FIELDS)
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_non_finite_inputs_rejected(name, bad):
-    arrays = {k: np.array(v, np.float64) for k, v in gaussians([ON_AXIS] * 3)._asdict().items()}
-    arrays[name].flat[-1] = bad
+    g = gaussians([ON_AXIS] * 3).map(lambda a: np.array(a, np.float64))
+    getattr(g, name).flat[-1] = bad
     with pytest.raises(ValueError, match=name):
-        kernel.Gaussians.checked(**arrays)
-    t = {k: torch.tensor(v, dtype=torch.float32) for k, v in arrays.items()}
+        g.checked()
+    t = g.map(lambda a: torch.tensor(a, dtype=torch.float32))
     viewmat, K = camera()
-    with pytest.raises(ValueError, match=name):
+    with pytest.raises(ValueError, match=name):  # the gsplat-order entry point names it too
         rasterization(
-            t["means"],
-            t["quats"],
-            t["log_scales"],
-            t["opacity_logits"],
-            t["colors"],
-            viewmat,
-            K,
-            5,
-            5,
+            means=t.means,
+            quats=t.quats,
+            log_scales=t.log_scales,
+            opacity_logits=t.opacity_logits,
+            colors=t.sh,
+            viewmat=viewmat,
+            K=K,
+            width=5,
+            height=5,
         )
+
+
+def test_kernel_takes_checked_frames_only():
+    g = gaussians([ON_AXIS] * 3)
+    with pytest.raises(ValueError, match="checked"):
+        render(replace(g, quats=g.quats.astype(np.float64)))
+    with pytest.raises(ValueError, match="sh"):  # SH coefficients: render_frame evaluates them
+        render(replace(g, sh=np.zeros((3, 4, 3), np.float32)))
 
 
 def test_non_finite_or_invalid_camera_rejected():
@@ -287,7 +304,7 @@ def test_non_finite_or_invalid_camera_rejected():
 
 def test_same_result_for_any_thread_count():
     scene = scenes.face_scene(4000, width=96, height=80, seed=2)
-    g = kernel.Gaussians.checked(*scene.gaussians())
+    g = scene.gaussians.checked()
     rng = np.random.default_rng(0)
     grads_out = (rng.normal(size=(80, 96, 3)), rng.normal(size=(80, 96)),
                  rng.normal(size=(80, 96)))  # fmt: skip
@@ -295,7 +312,7 @@ def test_same_result_for_any_thread_count():
     for threads in (1, 2, 3):
         settings = kernel.RasterSettings(scene.viewmat, scene.K, 96, 80, num_threads=threads)
         raster, ctx = kernel.forward(g, settings)
-        results.append((*raster, *kernel.backward(ctx, *grads_out)))
+        results.append((*raster, *kernel.backward(ctx, *grads_out).arrays().values()))
     for other in results[1:]:
         for a, b in zip(results[0], other, strict=True):
             np.testing.assert_array_equal(a, b)
@@ -311,8 +328,15 @@ def test_extreme_finite_inputs_give_finite_outputs():
     means = np.where(rng.uniform(size=(n, 3)) < 0.5, wild((n, 3)), rng.normal(0, 0.5, (n, 3)))
     means[:, 2] = np.abs(means[:, 2])
     log_scales = np.where(rng.uniform(size=(n, 3)) < 0.3, wild((n, 3)), rng.normal(-2, 2, (n, 3)))
-    g = kernel.Gaussians.checked(means, wild((n, 4)), log_scales, wild(n), wild((n, 3)) * 1e-3)
+    g = SplatFrame(
+        means=means,
+        log_scales=log_scales,
+        quats=wild((n, 4)),
+        opacity_logits=wild(n),
+        sh=wild((n, 3)) * 1e-3,
+    ).checked()
     for antialiased in (False, True):
         raster, ctx = render(g, 16, 12, camera(16, 12), antialiased=antialiased)
         assert ctx.stats()["visible"] > 0
-        assert all(np.isfinite(x).all() for x in (*raster, *backward_ones(ctx)))
+        grads = backward_ones(ctx).arrays().values()
+        assert all(np.isfinite(x).all() for x in (*raster, *grads))

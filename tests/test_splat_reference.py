@@ -1,11 +1,14 @@
 """The CPU splat kernel against the plain reference renderer, gsplat's PyTorch projection and
 gsplat's SH; the public `rasterization()` entry point on the CPU path."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
 
-from archhead_addon.splat import kernel, rasterization, scenes
+from archhead_addon.splat import kernel, rasterize_frame, scenes
+from archhead_addon.splat.frame import SplatFrame
 from archhead_addon.splat.reference import render_reference, render_tiles_torch
 from archhead_addon.splat.rendering import select_backend
 from archhead_addon.splat.sh import sh_to_rgb_numpy, sh_to_rgb_torch
@@ -13,16 +16,19 @@ from archhead_addon.splat.sh import sh_to_rgb_numpy, sh_to_rgb_torch
 TOL = 1e-5
 
 
+def float64(a) -> torch.Tensor:
+    return torch.tensor(a, dtype=torch.float64)
+
+
 def reference_image(scene, **kw):
-    t = [torch.tensor(a, dtype=torch.float64) for a in scene.gaussians()]
     return render_reference(
-        *t, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width, scene.height, **kw
-    )
+        scene.gaussians.map(float64), float64(scene.viewmat), float64(scene.K), scene.width,
+        scene.height, **kw,
+    )  # fmt: skip
 
 
 def kernel_image(scene, **kw):
-    settings = kernel.RasterSettings(scene.viewmat, scene.K, scene.width, scene.height, **kw)
-    raster, ctx = kernel.forward(kernel.Gaussians.checked(*scene.gaussians()), settings)
+    raster, ctx = kernel.forward(scene.gaussians.checked(), scene.settings(**kw))
     return raster, ctx.stats()
 
 
@@ -58,10 +64,10 @@ def test_forward_matches_reference_antialiased():
 
 def test_torch_tile_renderer_matches_reference():
     scene = scenes.face_scene(300, width=40, height=36, seed=3)
-    t = [torch.tensor(a, dtype=torch.float64) for a in scene.gaussians()]
     tiles = render_tiles_torch(
-        *t, torch.tensor(scene.viewmat), torch.tensor(scene.K), scene.width, scene.height
-    )
+        scene.gaussians.map(float64), float64(scene.viewmat), float64(scene.K), scene.width,
+        scene.height,
+    )  # fmt: skip
     ref = reference_image(scene)
     for a, b in zip(tiles, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-9)
@@ -86,17 +92,17 @@ def test_projection_matches_gsplat_torch_reference():
     quats = rng.normal(size=(n, 4)).astype(np.float32)
     log_scales = rng.uniform(-5, -1, (n, 3)).astype(np.float32)
     logits = rng.uniform(-2, 4, n).astype(np.float32)
-    g = kernel.Gaussians.checked(means, quats, log_scales, logits, np.zeros((n, 3)))
+    g = SplatFrame(
+        means=means, log_scales=log_scales, quats=quats, opacity_logits=logits, sh=np.zeros((n, 3))
+    ).checked()
 
     for antialiased in (False, True):
         settings = kernel.RasterSettings(viewmat, K, width, height, antialiased=antialiased)
         ours = kernel.project(g, settings)
-        t = {k: torch.tensor(getattr(g, k), dtype=torch.float64) for k in g._fields}
-        covars, _ = _quat_scale_to_covar_preci(
-            t["quats"], t["log_scales"].exp(), compute_preci=False
-        )
+        t = g.map(float64)
+        covars, _ = _quat_scale_to_covar_preci(t.quats, t.log_scales.exp(), compute_preci=False)
         radii, means2d, depths, conics, comp = _fully_fused_projection(
-            t["means"],
+            t.means,
             covars,
             torch.tensor(viewmat[None]),
             torch.tensor(K[None]),
@@ -146,22 +152,19 @@ def test_rasterization_cpu_path_matches_kernel_render():
     rng = np.random.default_rng(5)
     sh = rng.normal(0, 0.3, (500, 9, 3)).astype(np.float32)
     bg = (0.2, 0.4, 0.6)
-    out = rasterization(
-        *(torch.tensor(a) for a in scene.gaussians()[:4]),
-        torch.tensor(sh),
-        scene.viewmat,
-        scene.K,
-        scene.width,
-        scene.height,
-        background=bg,
+    with_sh = replace(scene.gaussians, sh=sh)
+    out = rasterize_frame(
+        with_sh.map(torch.tensor), scene.viewmat, scene.K, scene.width, scene.height, background=bg
     )
     assert out.rgb.shape == (40, 48, 3) and out.alpha.shape == out.depth.shape == (40, 48, 1)
     centre = np.linalg.inv(scene.viewmat)[:3, 3]
-    colors = sh_to_rgb_numpy(2, scene.means.astype(np.float64) - centre, sh.astype(np.float64))
-    settings = kernel.RasterSettings(
-        scene.viewmat, scene.K, scene.width, scene.height, background=bg
+    means = scene.gaussians.means.astype(np.float64)
+    colors = sh_to_rgb_numpy(2, means - centre, sh.astype(np.float64))
+    ref = kernel.render_frame(replace(scene.gaussians, sh=colors), scene.settings(background=bg))
+    # the kernel evaluates SH coefficients itself, as rasterization does
+    np.testing.assert_array_equal(
+        kernel.render_frame(with_sh, scene.settings(background=bg)).rgb, ref.rgb
     )
-    ref = kernel.render(*scene.gaussians()[:4], colors, settings)
     np.testing.assert_allclose(out.rgb.numpy(), ref.rgb, atol=1e-6)
     np.testing.assert_allclose(out.alpha.numpy()[..., 0], ref.alpha, atol=1e-6)
     np.testing.assert_allclose(out.depth.numpy()[..., 0], ref.depth, rtol=1e-6)

@@ -12,62 +12,12 @@ from __future__ import annotations
 import hashlib
 import zipfile
 from collections import OrderedDict
-from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
 from ..io.atomic import save_npz_atomic
-from .gaussians import Gaussians
-
-MIN_OPACITY = 1.0 / 255.0  # 3DGS skips samples below this alpha; such Gaussians are left out
-_LOGIT_MIN = float(np.log(MIN_OPACITY / (1.0 - MIN_OPACITY)))
-
-
-@dataclass
-class SplatFrame:
-    """One frame's visible Gaussians (float32, 3DGS storage conventions, FLAME space): the
-    Gaussian container of the numpy side (cache, point instances, PLY, exact renders). Its
-    fields are in the PLY's order, as in `Gaussians`; pass them on by name (`arrays()`),
-    never by position: the splat kernel takes quats before log_scales."""
-
-    means: np.ndarray  # (N,3)
-    log_scales: np.ndarray  # (N,3)
-    quats: np.ndarray  # (N,4) w, x, y, z, unit
-    opacity_logits: np.ndarray  # (N,)
-    sh: np.ndarray  # (N,16,3), DC first
-    resolution: int  # the UV resolution S it was decoded at
-
-    @classmethod
-    def from_gaussians(cls, g: Gaussians) -> SplatFrame:
-        keep = np.asarray(g.opacity_logits) >= _LOGIT_MIN
-        return cls(
-            *(
-                np.ascontiguousarray(np.asarray(a)[keep], np.float32)
-                for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)
-            ),
-            resolution=int(g.resolution),
-        )
-
-    def __len__(self) -> int:
-        return len(self.means)
-
-    @property
-    def nbytes(self) -> int:
-        return sum(a.nbytes for a in self.arrays().values())
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The arrays by field name, in field order (`write_ply(path, **frame.arrays())`)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "resolution"}
-
-    @classmethod
-    def concatenate(cls, frames: list[SplatFrame]) -> SplatFrame:
-        """Several frames as one (a scene's avatars in one space); resolution of the first."""
-        arrays = [f.arrays() for f in frames]
-        return cls(
-            **{name: np.concatenate([a[name] for a in arrays]) for name in arrays[0]},
-            resolution=frames[0].resolution,
-        )
+from ..splat.frame import FIELDS, SplatFrame
 
 
 def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
@@ -134,10 +84,7 @@ class DiskCache:
             return None
         try:
             with np.load(path, allow_pickle=False) as z:
-                arrays = {
-                    name: z[name]
-                    for name in ("means", "log_scales", "quats", "opacity_logits", "sh")
-                }
+                arrays = {name: z[name] for name in FIELDS}
                 return SplatFrame(**arrays, resolution=int(z["resolution"]))
         except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError):
             return None

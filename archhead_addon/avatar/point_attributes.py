@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..splat.frame import SplatFrame
 from ..splat.sh import degree_from_coeffs, sh_to_rgb_numpy
-from .decode_cache import SplatFrame
 from .gaussians import SH_C0
 
 

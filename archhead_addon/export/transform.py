@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..avatar.decode_cache import SplatFrame
 from ..avatar.gaussians import quat_multiply
 from ..rotations import matrix_to_quaternion
+from ..splat.frame import SplatFrame
 from ..splat.sh import degree_from_coeffs, sh_basis
 
 

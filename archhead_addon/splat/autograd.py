@@ -6,10 +6,13 @@ import torch
 from torch.autograd.function import once_differentiable
 
 from . import kernel
+from .frame import FIELDS, SplatFrame
 
 
 class SplatCPU(torch.autograd.Function):
-    """(means, quats, log_scales, opacity_logits, colors) -> (rgb, alpha, depth_acc).
+    """(settings, the frame's tensors in field order) -> (rgb, alpha, depth_acc); autograd
+    takes tensors only as positional arguments, so `splat_cpu` spreads a frame here and
+    both directions pair them with the field names again.
 
     Computes in float32 on the CPU (inputs on other devices or dtypes are converted and the
     gradients converted back); outputs are float32 on the inputs' device. depth_acc is the
@@ -17,14 +20,13 @@ class SplatCPU(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, means, quats, log_scales, opacity_logits, colors, settings):
-        inputs = (means, quats, log_scales, opacity_logits, colors)
-        gaussians = kernel.Gaussians.checked(*(t.detach().cpu().numpy() for t in inputs))
-        raster, handle = kernel.forward(gaussians, settings)
+    def forward(ctx, settings, *tensors):
+        host = {name: t.detach().cpu().numpy() for name, t in zip(FIELDS, tensors, strict=True)}
+        raster, handle = kernel.forward(SplatFrame(**host).checked(), settings)
         ctx.handle = handle
-        ctx.like = [(t.dtype, t.device) for t in inputs]
+        ctx.like = [(t.dtype, t.device) for t in tensors]
         ctx.set_materialize_grads(False)
-        return tuple(torch.from_numpy(a).to(means.device) for a in raster)
+        return tuple(torch.from_numpy(a).to(tensors[0].device) for a in raster)
 
     @staticmethod
     @once_differentiable
@@ -34,14 +36,15 @@ class SplatCPU(torch.autograd.Function):
 
         if g_rgb is None:
             g_rgb = torch.zeros(ctx.handle.shape + (3,))
-        grads = kernel.backward(ctx.handle, host(g_rgb), host(g_alpha), host(g_depth))
+        grads = kernel.backward(ctx.handle, host(g_rgb), host(g_alpha), host(g_depth)).arrays()
         out = [
-            torch.from_numpy(g).to(dtype=dtype, device=device)
-            for g, (dtype, device) in zip(grads, ctx.like, strict=True)
+            torch.from_numpy(grads[name]).to(dtype=dtype, device=device)
+            for name, (dtype, device) in zip(FIELDS, ctx.like, strict=True)
         ]
-        return (*out, None)
+        return (None, *out)
 
 
-def splat_cpu(means, quats, log_scales, opacity_logits, colors, settings: kernel.RasterSettings):
-    """Differentiable CPU render: (rgb (H,W,3), alpha (H,W), depth_acc (H,W))."""
-    return SplatCPU.apply(means, quats, log_scales, opacity_logits, colors, settings)
+def splat_cpu(frame: SplatFrame, settings: kernel.RasterSettings):
+    """Differentiable CPU render of a frame of tensors (RGB in sh): (rgb (H,W,3), alpha
+    (H,W), depth_acc (H,W))."""
+    return SplatCPU.apply(settings, *(getattr(frame, name) for name in FIELDS))

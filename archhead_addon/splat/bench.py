@@ -29,10 +29,8 @@ def best_of(fn, repeats: int) -> float:
 
 
 def time_kernel(scene: scenes.Scene, threads: int, repeats: int):
-    g = kernel.Gaussians.checked(*scene.gaussians())
-    settings = kernel.RasterSettings(
-        scene.viewmat, scene.K, scene.width, scene.height, num_threads=threads
-    )
+    g = scene.gaussians.checked()
+    settings = scene.settings(num_threads=threads)
     g_rgb = np.full((scene.height, scene.width, 3), 0.1, np.float32)
     ctx = kernel.forward(g, settings)[1]  # warm-up
     fwd = best_of(lambda: kernel.forward(g, settings), repeats)
@@ -50,9 +48,9 @@ def time_torch_tiles(scene: scenes.Scene, repeats: int = 2):
               torch.tensor(scene.K, dtype=torch.float32))  # fmt: skip
     fwd, bwd = [], []
     for _ in range(repeats):
-        params = [torch.tensor(a, requires_grad=True) for a in scene.gaussians()]
+        params = scene.gaussians.map(lambda a: torch.tensor(a, requires_grad=True))
         t0 = time.perf_counter()
-        out = render_tiles_torch(*params, *camera, scene.width, scene.height)
+        out = render_tiles_torch(params, *camera, scene.width, scene.height)
         t1 = time.perf_counter()
         (out.rgb.sum() * 0.1).backward()
         fwd.append(t1 - t0)

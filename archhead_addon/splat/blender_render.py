@@ -18,7 +18,7 @@ from ..camera import (
     blender_to_intrinsics,
 )
 from . import kernel
-from .sh import degree_from_coeffs, sh_to_rgb_numpy
+from .frame import SplatFrame
 
 
 def blender_camera_to_opencv(camera: BlenderCamera, camera_matrix_world,
@@ -32,48 +32,19 @@ def blender_camera_to_opencv(camera: BlenderCamera, camera_matrix_world,
 
 
 def render_from_blender_camera(
-    means, quats, log_scales, opacity_logits, colors, camera: BlenderCamera,
-    camera_matrix_world, object_matrix_world=FLAME_TO_BLENDER, *,
-    sh_degree: int | None = None, background=(0.0, 0.0, 0.0),
+    frame: SplatFrame, camera: BlenderCamera, camera_matrix_world,
+    object_matrix_world=FLAME_TO_BLENDER, *, background=(0.0, 0.0, 0.0),
     near_plane: float = 0.01, far_plane: float = 1e10, eps2d: float = 0.3,
     antialiased: bool = False, num_threads: int = 0,
 ) -> kernel.Raster:  # fmt: skip
-    """Render at the camera's resolution. Gaussians follow the `kernel` conventions in their
-    object space; colors are (N,3) RGB or (N,K,3) SH coefficients (evaluated towards the
-    camera centre in that space). Returns rgb (H,W,3) over `background`, alpha (H,W) and
-    expected depth (H,W; camera z in Blender world units, 0 where empty)."""
+    """Render a frame at the camera's resolution. Its Gaussians follow the `kernel`
+    conventions in their object space; sh is (N,3) RGB or (N,K,3) SH coefficients (evaluated
+    towards the camera centre in that space). Returns rgb (H,W,3) over `background`, alpha
+    (H,W) and expected depth (H,W; camera z in Blender world units, 0 where empty)."""
     viewmat, K = blender_camera_to_opencv(camera, camera_matrix_world, object_matrix_world)
-    colors = np.asarray(colors, dtype=np.float64)
-    if colors.ndim == 3:
-        degree = degree_from_coeffs(colors.shape[1]) if sh_degree is None else sh_degree
-        centre = np.linalg.inv(viewmat)[:3, 3]
-        means64 = kernel.check_array("means", means, (-1, 3)).astype(np.float64)
-        colors = sh_to_rgb_numpy(degree, means64 - centre, colors)
     settings = kernel.RasterSettings(
         viewmat=viewmat, K=K, width=camera.resolution_x, height=camera.resolution_y,
         near_plane=near_plane, far_plane=far_plane, eps2d=eps2d, antialiased=antialiased,
         background=tuple(background), num_threads=num_threads,
     )  # fmt: skip
-    return kernel.render(means, quats, log_scales, opacity_logits, colors, settings)
-
-
-def render_frame_from_blender_camera(
-    frame,
-    camera: BlenderCamera,
-    camera_matrix_world,
-    object_matrix_world=FLAME_TO_BLENDER,
-    **options,
-) -> kernel.Raster:
-    """`render_from_blender_camera` of a Gaussian container (avatar.decode_cache.SplatFrame
-    or anything with its field names): the one place its fields meet the kernel's order."""
-    return render_from_blender_camera(
-        means=frame.means,
-        quats=frame.quats,
-        log_scales=frame.log_scales,
-        opacity_logits=frame.opacity_logits,
-        colors=frame.sh,
-        camera=camera,
-        camera_matrix_world=camera_matrix_world,
-        object_matrix_world=object_matrix_world,
-        **options,
-    )
+    return kernel.render_frame(frame, settings)

@@ -1,9 +1,10 @@
 """ctypes binding of the C++ splat kernel. numpy only: Blender's Python uses it directly.
 
-Argument conventions (the same everywhere in `archhead_addon.splat`):
-  means (N,3) world positions; quats (N,4) w,x,y,z (normalised inside, zero -> identity);
-  log_scales (N,3) natural log of the axis scales (clamped to [-23, 11.5] before exp);
-  opacity_logits (N,) (opacity = sigmoid); colors (N,3) RGB after SH evaluation.
+Gaussians come as a `SplatFrame` (frame.py; its fields by name, in the C ABI's order):
+  means (N,3) world positions; log_scales (N,3) natural log of the axis scales (clamped to
+  [-23, 11.5] before exp); quats (N,4) w,x,y,z (normalised inside, zero -> identity);
+  opacity_logits (N,) (opacity = sigmoid); sh (N,3) RGB after SH evaluation (`render_frame`
+  also takes (N,K,3) SH coefficients and evaluates them towards the camera).
   viewmat (4,4) world-to-camera, OpenCV axes (x right, y down, z forward); K (3,3) in
   pixels, pixel (i, j) centred at (i + 0.5, j + 0.5).
 Every input must be finite; a non-finite entry raises ValueError naming the array.
@@ -12,12 +13,14 @@ Every input must be finite; a non-finite entry raises ValueError naming the arra
 from __future__ import annotations
 
 import ctypes
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
 
 from . import build
+from .frame import SplatFrame, check_array, from_gsplat_order
+from .sh import degree_from_coeffs, sh_to_rgb_numpy
 
 LOG_SCALE_MIN, LOG_SCALE_MAX = -23.0, 11.5  # AH_LOG_SCALE_MIN/MAX in csrc/splat.h
 _ERR_LEN = 512
@@ -146,42 +149,28 @@ class RasterSettings:
         return p
 
 
-def check_array(name: str, x, shape: tuple, dtype=np.float32) -> np.ndarray:
-    """C-contiguous float32 (or dtype) copy/view of x with the given shape (-1: any); finite."""
-    a = np.ascontiguousarray(x, dtype=dtype)
-    if a.ndim != len(shape) or any(s not in (-1, d) for s, d in zip(shape, a.shape, strict=True)):
-        want = "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"
-        raise ValueError(f"{name} must have shape {want}, got {tuple(a.shape)}")
-    bad = a.size - int(np.count_nonzero(np.isfinite(a)))
-    if bad:
-        raise ValueError(f"{name} contains {bad} non-finite value(s) (NaN, Inf, or beyond float32)")
-    return a
-
-
 def _ptr(a: np.ndarray):
     return a.ctypes.data_as(_F32)
 
 
-class Gaussians(NamedTuple):
-    """Validated kernel inputs (float32, C-contiguous)."""
-
-    means: np.ndarray
-    quats: np.ndarray
-    log_scales: np.ndarray
-    opacity_logits: np.ndarray
-    colors: np.ndarray
-
-    @classmethod
-    def checked(cls, means, quats, log_scales, opacity_logits, colors) -> Gaussians:
-        means = check_array("means", means, (-1, 3))
-        n = means.shape[0]
-        return cls(
-            means,
-            check_array("quats", quats, (n, 4)),
-            check_array("log_scales", log_scales, (n, 3)),
-            check_array("opacity_logits", opacity_logits, (n,)),
-            check_array("colors", colors, (n, 3)),
-        )
+def _require_checked(g: SplatFrame) -> int:
+    """N, after a cheap check that the frame went through `SplatFrame.checked()` with RGB
+    colours: the kernel reads the arrays through raw pointers."""
+    n = len(g.means)
+    shapes = {"means": (n, 3), "log_scales": (n, 3), "quats": (n, 4), "opacity_logits": (n,),
+              "sh": (n, 3)}  # fmt: skip
+    for name, a in g.arrays().items():
+        if not (
+            isinstance(a, np.ndarray)
+            and a.dtype == np.float32
+            and a.flags.c_contiguous
+            and a.shape == shapes[name]
+        ):
+            raise ValueError(
+                f"{name}: the kernel takes a checked frame (SplatFrame.checked()) with "
+                f"(N,3) RGB in sh; got {getattr(a, 'dtype', type(a))} {getattr(a, 'shape', '')}"
+            )
+    return n
 
 
 class Projected(NamedTuple):
@@ -196,9 +185,10 @@ def _raise(err: ctypes.Array) -> None:
     raise ValueError(err.value.decode(errors="replace"))
 
 
-def project(gaussians: Gaussians, settings: RasterSettings) -> Projected:
-    """Per-Gaussian projection exactly as the rasteriser uses it."""
-    lib, g, n = library(), gaussians, gaussians.means.shape[0]
+def project(g: SplatFrame, settings: RasterSettings) -> Projected:
+    """Per-Gaussian projection exactly as the rasteriser uses it (g: a checked frame)."""
+    n = _require_checked(g)
+    lib = library()
     out = Projected(
         np.zeros((n, 2), np.float64),
         np.zeros((n, 3), np.float32),
@@ -256,8 +246,11 @@ class Raster(NamedTuple):
     depth: np.ndarray  # (H,W)
 
 
-def forward(gaussians: Gaussians, settings: RasterSettings) -> tuple[Raster, ForwardContext]:
-    lib, g, n = library(), gaussians, gaussians.means.shape[0]
+def forward(g: SplatFrame, settings: RasterSettings) -> tuple[Raster, ForwardContext]:
+    """The image of a checked frame (`SplatFrame.checked()`, RGB in sh) and the state its
+    backward pass needs."""
+    n = _require_checked(g)
+    lib = library()
     h, w = int(settings.height), int(settings.width)
     out = Raster(
         np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
@@ -267,7 +260,7 @@ def forward(gaussians: Gaussians, settings: RasterSettings) -> tuple[Raster, For
     params = settings.to_c()
     handle = lib.ah_splat_forward(
         ctypes.byref(params), n, _ptr(g.means), _ptr(g.log_scales), _ptr(g.quats),
-        _ptr(g.opacity_logits), _ptr(g.colors), _ptr(out.rgb), _ptr(out.alpha),
+        _ptr(g.opacity_logits), _ptr(g.sh), _ptr(out.rgb), _ptr(out.alpha),
         _ptr(out.depth), err, _ERR_LEN,
     )  # fmt: skip
     if not handle:
@@ -275,30 +268,24 @@ def forward(gaussians: Gaussians, settings: RasterSettings) -> tuple[Raster, For
     return out, ForwardContext(handle, n, (h, w))
 
 
-class Grads(NamedTuple):
-    means: np.ndarray
-    quats: np.ndarray
-    log_scales: np.ndarray
-    opacity_logits: np.ndarray
-    colors: np.ndarray
-
-
-def backward(ctx: ForwardContext, g_rgb, g_alpha=None, g_depth=None) -> Grads:
-    """Gradients of the inputs given dL/d(rgb, alpha, accumulated depth)."""
+def backward(ctx: ForwardContext, g_rgb, g_alpha=None, g_depth=None) -> SplatFrame:
+    """Gradients of the inputs given dL/d(rgb, alpha, accumulated depth), field by field
+    (sh: of the RGB colours)."""
     h, w = ctx.shape
     g_rgb = check_array("g_rgb", g_rgb, (h, w, 3))
     g_alpha = None if g_alpha is None else check_array("g_alpha", g_alpha, (h, w))
     g_depth = None if g_depth is None else check_array("g_depth", g_depth, (h, w))
     n = ctx.n
-    out = Grads(
-        np.empty((n, 3), np.float32), np.empty((n, 4), np.float32),
-        np.empty((n, 3), np.float32), np.empty(n, np.float32), np.empty((n, 3), np.float32),
+    out = SplatFrame(
+        means=np.empty((n, 3), np.float32), log_scales=np.empty((n, 3), np.float32),
+        quats=np.empty((n, 4), np.float32), opacity_logits=np.empty(n, np.float32),
+        sh=np.empty((n, 3), np.float32),
     )  # fmt: skip
     err = ctypes.create_string_buffer(_ERR_LEN)
     rc = library().ah_splat_backward(
         ctx.handle, _ptr(g_rgb), None if g_alpha is None else _ptr(g_alpha),
         None if g_depth is None else _ptr(g_depth), _ptr(out.means), _ptr(out.log_scales),
-        _ptr(out.quats), _ptr(out.opacity_logits), _ptr(out.colors), err, _ERR_LEN,
+        _ptr(out.quats), _ptr(out.opacity_logits), _ptr(out.sh), err, _ERR_LEN,
     )  # fmt: skip
     if rc != 0:
         _raise(err)
@@ -310,10 +297,23 @@ def expected_depth(depth_acc: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     return depth_acc / np.maximum(alpha, 1e-10)
 
 
-def render(means, quats, log_scales, opacity_logits, colors, settings: RasterSettings) -> Raster:
-    """Render with numpy arrays; depth is the expected depth (see module docstring)."""
-    raster, ctx = forward(
-        Gaussians.checked(means, quats, log_scales, opacity_logits, colors), settings
-    )
+def render_frame(frame: SplatFrame, settings: RasterSettings) -> Raster:
+    """Render a frame (checked here; SH coefficients in sh evaluated towards the camera
+    centre); depth is the expected depth (see the module docstring)."""
+    g = frame.checked()
+    if g.sh.ndim == 3:
+        centre = np.linalg.inv(np.asarray(settings.viewmat, np.float64))[:3, 3]
+        rgb = sh_to_rgb_numpy(
+            degree_from_coeffs(g.sh.shape[1]), g.means.astype(np.float64) - centre, g.sh
+        )
+        g = replace(g, sh=check_array("sh", rgb, (len(g), 3)))
+    raster, ctx = forward(g, settings)
     ctx.release()
     return raster._replace(depth=expected_depth(raster.depth, raster.alpha))
+
+
+def render(means, quats, log_scales, opacity_logits, colors, settings: RasterSettings) -> Raster:
+    """`render_frame` with gsplat's argument order (colors (N,3) RGB or (N,K,3) SH)."""
+    return render_frame(
+        from_gsplat_order(means, quats, log_scales, opacity_logits, colors), settings
+    )

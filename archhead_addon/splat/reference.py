@@ -1,9 +1,11 @@
-"""Plain PyTorch renderers with the kernel's rules, for tests and the benchmark only.
+"""Plain PyTorch renderers with the kernel's rules, for tests and the benchmark only; they
+take a `SplatFrame` of tensors (RGB in sh).
 
 `render_reference` evaluates every Gaussian at every pixel, front to back, in whatever dtype
 it is given (float64 in the tests; torch autograd gives the reference gradients).
 `render_tiles_torch` is the usual pure-torch tile renderer (dense alpha matrix per 16x16 tile,
-cumprod transmittance) that the benchmark compares the kernel against.
+cumprod transmittance) that the splat benchmark (benchmarks/splat_kernel.py) compares the
+kernel against.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from typing import NamedTuple
 
 import torch
 
+from .frame import SplatFrame
 from .kernel import LOG_SCALE_MAX, LOG_SCALE_MIN
 
 ALPHA_MIN = 1.0 / 255.0
@@ -44,12 +47,11 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     return R.reshape(q.shape[:-1] + (3, 3))
 
 
-def _project(means, quats, log_scales, opacity_logits, viewmat, K, width, height, eps2d,
-             antialiased):  # fmt: skip
-    R = quat_to_rotmat(quats)
-    M = R * log_scales.clamp(LOG_SCALE_MIN, LOG_SCALE_MAX).exp()[..., None, :]
+def _project(g: SplatFrame, viewmat, K, width, height, eps2d, antialiased):
+    R = quat_to_rotmat(g.quats)
+    M = R * g.log_scales.clamp(LOG_SCALE_MIN, LOG_SCALE_MAX).exp()[..., None, :]
     V, t = viewmat[:3, :3], viewmat[:3, 3]
-    tc = means @ V.T + t
+    tc = g.means @ V.T + t
     Sc = V @ (M @ M.transpose(-1, -2)) @ V.T
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
@@ -64,28 +66,25 @@ def _project(means, quats, log_scales, opacity_logits, viewmat, K, width, height
     covd = cov + eps2d * torch.eye(2, dtype=cov.dtype)
     det = covd[:, 0, 0] * covd[:, 1, 1] - covd[:, 0, 1] * covd[:, 1, 0]
     conics = torch.stack([covd[:, 1, 1] / det, -covd[:, 0, 1] / det, covd[:, 0, 0] / det], -1)
-    opacity = torch.sigmoid(opacity_logits)
+    opacity = torch.sigmoid(g.opacity_logits)
     if antialiased:
         opacity = opacity * (det_orig / det).clamp_min(0.0).sqrt()
     means2d = torch.stack([fx * tc[:, 0] / tz + cx, fy * tc[:, 1] / tz + cy], -1)
     return means2d, conics, tz, opacity, covd, det
 
 
-def project_reference(means, quats, log_scales, opacity_logits, viewmat, K, width, height, *,
-                      near_plane=0.01, far_plane=1e10, eps2d=0.3,
-                      antialiased=False) -> Projection:  # fmt: skip
-    """Differentiable projection of the Gaussians that survive the kernel's culling."""
-    viewmat, K = viewmat.to(means), K.to(means)
+def project_reference(g: SplatFrame, viewmat, K, width, height, *, near_plane=0.01,
+                      far_plane=1e10, eps2d=0.3, antialiased=False) -> Projection:  # fmt: skip
+    """Differentiable projection of a frame's Gaussians that survive the kernel's culling."""
+    viewmat, K = viewmat.to(g.means), K.to(g.means)
     args = (viewmat, K, width, height, eps2d, antialiased)
     with torch.no_grad():  # decide culling first so culled rows never enter the graph
-        _, _, tz, opacity, _, det = _project(means, quats, log_scales, opacity_logits, *args)
+        _, _, tz, opacity, _, det = _project(g, *args)
         keep = (tz > near_plane) & (tz < far_plane)
         keep &= torch.nan_to_num(det, nan=0.0) > DET_MIN
         keep &= torch.nan_to_num(opacity, nan=0.0) >= ALPHA_MIN
         ids = keep.nonzero().flatten()
-    means2d, conics, tz, opacity, covd, _ = _project(
-        means[ids], quats[ids], log_scales[ids], opacity_logits[ids], *args
-    )
+    means2d, conics, tz, opacity, covd, _ = _project(g.map(lambda a: a[ids]), *args)
     return Projection(ids, means2d, conics, tz, opacity, covd)
 
 
@@ -102,14 +101,14 @@ def _alpha(P: Projection, k, dx, dy):
     return alpha, (power <= 0) & (alpha >= ALPHA_MIN)
 
 
-def render_reference(means, quats, log_scales, opacity_logits, colors, viewmat, K, width,
-                     height, *, near_plane=0.01, far_plane=1e10, eps2d=0.3, antialiased=False,
+def render_reference(g: SplatFrame, viewmat, K, width, height, *, near_plane=0.01,
+                     far_plane=1e10, eps2d=0.3, antialiased=False,
                      background=(0.0, 0.0, 0.0)) -> Image:  # fmt: skip
-    """Every Gaussian at every pixel, front to back (slow; small images only)."""
-    P = project_reference(means, quats, log_scales, opacity_logits, viewmat, K, width, height,
-                          near_plane=near_plane, far_plane=far_plane, eps2d=eps2d,
-                          antialiased=antialiased)  # fmt: skip
-    dtype = means.dtype
+    """Every Gaussian of a frame (RGB in sh) at every pixel, front to back (slow; small
+    images only)."""
+    P = project_reference(g, viewmat, K, width, height, near_plane=near_plane,
+                          far_plane=far_plane, eps2d=eps2d, antialiased=antialiased)  # fmt: skip
+    dtype = g.means.dtype
     ys, xs = torch.meshgrid(torch.arange(height, dtype=dtype) + 0.5,
                             torch.arange(width, dtype=dtype) + 0.5, indexing="ij")  # fmt: skip
     xs, ys = xs.reshape(-1), ys.reshape(-1)
@@ -117,7 +116,7 @@ def render_reference(means, quats, log_scales, opacity_logits, colors, viewmat, 
     rgb = torch.zeros(xs.shape + (3,), dtype=dtype)
     depth = torch.zeros_like(xs)
     live = torch.ones_like(xs, dtype=torch.bool)
-    cols = colors[P.ids]
+    cols = g.sh[P.ids]
     for k in torch.argsort(P.depths.detach(), stable=True).tolist():
         alpha, ok = _alpha(P, k, P.means2d[k, 0] - xs, P.means2d[k, 1] - ys)
         ok &= live
@@ -135,27 +134,17 @@ def render_reference(means, quats, log_scales, opacity_logits, colors, viewmat, 
                  depth.reshape(height, width))  # fmt: skip
 
 
-def render_tiles_torch(means, quats, log_scales, opacity_logits, colors, viewmat, K, width,
-                       height, *, near_plane=0.01, far_plane=1e10, eps2d=0.3,
-                       background=(0.0, 0.0, 0.0)) -> Image:  # fmt: skip
-    """Pure-torch tile renderer (dense per-tile alpha matrices; autograd for gradients)."""
+def render_tiles_torch(g: SplatFrame, viewmat, K, width, height, *, near_plane=0.01,
+                       far_plane=1e10, eps2d=0.3, background=(0.0, 0.0, 0.0)) -> Image:  # fmt: skip
+    """Pure-torch tile renderer of a frame (RGB in sh; dense per-tile alpha matrices;
+    autograd for gradients)."""
     P = project_reference(
-        means,
-        quats,
-        log_scales,
-        opacity_logits,
-        viewmat,
-        K,
-        width,
-        height,
-        near_plane=near_plane,
-        far_plane=far_plane,
-        eps2d=eps2d,
+        g, viewmat, K, width, height, near_plane=near_plane, far_plane=far_plane, eps2d=eps2d
     )
-    dtype = means.dtype
+    dtype = g.means.dtype
     order = torch.argsort(P.depths.detach(), stable=True)
     P = Projection(*(t[order] for t in P))
-    cols, z = colors[P.ids], P.depths
+    cols, z = g.sh[P.ids], P.depths
     with torch.no_grad():  # opacity-aware bounds, as the kernel
         k = (2 * torch.log(255 * P.opacities.clamp_min(ALPHA_MIN))).sqrt()
         r = k[:, None] * torch.stack([P.cov2d[:, 0, 0], P.cov2d[:, 1, 1]], -1).sqrt()

@@ -1,14 +1,17 @@
 """The one public render call for training: gsplat on CUDA when available, else the CPU kernel.
 
-Argument conventions follow gsplat's `rasterization()` in order and axes, with ArchHead's
-storage conventions for the activations (so checkpoints feed it without conversion):
+`rasterize_frame` takes a `SplatFrame` of tensors; `rasterization` takes gsplat's
+`rasterization()` arguments in gsplat's order and axes (quats before log_scales, `colors`),
+with ArchHead's storage conventions for the activations (so checkpoints feed it without
+conversion), and passes them on as a SplatFrame:
 
   means (N,3)            world positions
-  quats (N,4)            w, x, y, z; any length (normalised inside; zero -> identity)
   log_scales (N,3)       natural log of the scales (clamped to [-23, 11.5] before exp)
+  quats (N,4)            w, x, y, z; any length (normalised inside; zero -> identity)
   opacity_logits (N,)    opacity = sigmoid(logit)
-  colors (N,3) | (N,K,3) RGB, or SH coefficients with K = (sh_degree + 1)^2 evaluated for the
-                         direction from the camera centre to each mean (3DGS: +0.5, >= 0)
+  sh (N,3) | (N,K,3)     (gsplat: colors) RGB, or SH coefficients with K = (sh_degree + 1)^2
+                         evaluated for the direction from the camera centre to each mean
+                         (3DGS: +0.5, >= 0)
   viewmat (4,4)          world-to-camera, OpenCV axes (x right, y down, z forward)
   K (3,3)                intrinsics in pixels; pixel (i, j) is centred at (i + 0.5, j + 0.5)
 
@@ -26,6 +29,7 @@ bounds tiles at 3.33 sigma, so the two back ends differ slightly on saturated pi
 from __future__ import annotations
 
 import importlib.util
+from dataclasses import replace
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -33,6 +37,7 @@ import torch
 
 from . import kernel
 from .autograd import splat_cpu
+from .frame import SplatFrame, from_gsplat_order
 from .sh import degree_from_coeffs, sh_to_rgb_torch
 
 Backend = Literal["auto", "cpu", "gsplat"]
@@ -84,6 +89,19 @@ def rasterization(
     K,
     width: int,
     height: int,
+    **options,
+) -> Rendered:
+    """`rasterize_frame` with gsplat's argument order (see the module docstring)."""
+    frame = from_gsplat_order(means, quats, log_scales, opacity_logits, colors)
+    return rasterize_frame(frame, viewmat, K, width, height, **options)
+
+
+def rasterize_frame(
+    frame: SplatFrame,
+    viewmat,
+    K,
+    width: int,
+    height: int,
     *,
     near_plane: float = 0.01,
     far_plane: float = 1e10,
@@ -97,7 +115,7 @@ def rasterization(
     """Render one camera (see the module docstring for the conventions)."""
     if rasterize_mode not in ("classic", "antialiased"):
         raise ValueError(f"rasterize_mode must be 'classic' or 'antialiased': {rasterize_mode!r}")
-    device = means.device
+    device = frame.means.device
     # float64 on the host for the CPU kernel (it projects in double); float32 on the device
     viewmat64, K64 = (
         np.asarray(torch.as_tensor(x).detach().cpu(), np.float64) for x in (viewmat, K)
@@ -105,12 +123,12 @@ def rasterization(
     viewmat = torch.as_tensor(viewmat64, dtype=torch.float32, device=device)
     K = torch.as_tensor(K64, dtype=torch.float32, device=device)
     bg = torch.zeros(3) if background is None else torch.as_tensor(background).float().cpu()
-    rgb_in = resolve_colors(colors, means, viewmat, sh_degree)
+    frame = replace(frame, sh=resolve_colors(frame.sh, frame.means, viewmat, sh_degree))
 
     if select_backend(backend, device) == "gsplat":
         return _rasterize_gsplat(
-            means, quats, log_scales, opacity_logits, rgb_in, viewmat, K, width, height,
-            near_plane, far_plane, eps2d, bg.to(device), rasterize_mode,
+            frame, viewmat, K, width, height, near_plane, far_plane, eps2d, bg.to(device),
+            rasterize_mode,
         )  # fmt: skip
 
     settings = kernel.RasterSettings(
@@ -125,26 +143,25 @@ def rasterization(
         background=tuple(np.asarray(bg, dtype=np.float64).tolist()),
         num_threads=num_threads,
     )
-    rgb, alpha, depth_acc = splat_cpu(means, quats, log_scales, opacity_logits, rgb_in, settings)
+    rgb, alpha, depth_acc = splat_cpu(frame, settings)
     alpha = alpha[..., None]
     return Rendered(rgb, alpha, depth_acc[..., None] / alpha.clamp_min(1e-10))
 
 
 def _rasterize_gsplat(
-    means, quats, log_scales, opacity_logits, rgb, viewmat, K, width, height, near_plane,
-    far_plane, eps2d, bg, rasterize_mode,
+    frame, viewmat, K, width, height, near_plane, far_plane, eps2d, bg, rasterize_mode,
 ) -> Rendered:  # fmt: skip
     import gsplat
 
-    for name, t in (("means", means), ("quats", quats), ("log_scales", log_scales),
-                    ("opacity_logits", opacity_logits), ("colors", rgb)):  # fmt: skip
+    for name, t in frame.arrays().items():
         if not torch.isfinite(t).all():
             raise ValueError(f"{name} contains non-finite values (NaN or Inf)")
-    scales = log_scales.clamp(kernel.LOG_SCALE_MIN, kernel.LOG_SCALE_MAX).exp()
+    scales = frame.log_scales.clamp(kernel.LOG_SCALE_MIN, kernel.LOG_SCALE_MAX).exp()
     colors, alphas, _ = gsplat.rasterization(
-        means, quats, scales, torch.sigmoid(opacity_logits), rgb, viewmat[None], K[None],
-        width, height, near_plane=near_plane, far_plane=far_plane, eps2d=eps2d,
-        packed=False, render_mode="RGB+ED", rasterize_mode=rasterize_mode,
+        means=frame.means, quats=frame.quats, scales=scales,
+        opacities=torch.sigmoid(frame.opacity_logits), colors=frame.sh, viewmats=viewmat[None],
+        Ks=K[None], width=width, height=height, near_plane=near_plane, far_plane=far_plane,
+        eps2d=eps2d, packed=False, render_mode="RGB+ED", rasterize_mode=rasterize_mode,
     )  # fmt: skip
     alpha = alphas[0]
     rgb_out = colors[0, ..., :3] + (1.0 - alpha) * bg

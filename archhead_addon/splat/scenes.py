@@ -1,4 +1,4 @@
-"""Synthetic Gaussian scenes for the tests and the benchmark (numpy only)."""
+"""Synthetic Gaussian scenes for the tests and the splat benchmark (numpy only)."""
 
 from __future__ import annotations
 
@@ -7,21 +7,26 @@ from typing import NamedTuple
 import numpy as np
 
 from ..rotations import matrix_to_quaternion
+from .frame import SplatFrame
+from .kernel import RasterSettings
 
 
 class Scene(NamedTuple):
-    means: np.ndarray  # (N,3) float32
-    quats: np.ndarray  # (N,4) w,x,y,z
-    log_scales: np.ndarray  # (N,3)
-    opacity_logits: np.ndarray  # (N,)
-    colors: np.ndarray  # (N,3)
+    """Gaussians (float32, RGB colours in sh) and the camera that sees them."""
+
+    gaussians: SplatFrame
     viewmat: np.ndarray  # (4,4) world-to-camera (OpenCV)
     K: np.ndarray  # (3,3)
     width: int
     height: int
 
-    def gaussians(self) -> tuple:
-        return self.means, self.quats, self.log_scales, self.opacity_logits, self.colors
+    def settings(self, **options) -> RasterSettings:
+        """The kernel's settings for this camera (options: RasterSettings' others)."""
+        return RasterSettings(self.viewmat, self.K, self.width, self.height, **options)
+
+
+def _float32(a) -> np.ndarray:
+    return np.asarray(a, np.float32)
 
 
 def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
@@ -72,8 +77,10 @@ def face_scene(n: int, width: int = 256, height: int = 256, seed: int = 0,
     colors = np.clip(skin + rng.normal(0, 0.1, (n, 3)), 0, 1)
     focal = 0.7 * height * distance / (2 * axes[1])
     return Scene(
-        means.astype(np.float32), matrix_to_quaternion(R).astype(np.float32),
-        log_scales.astype(np.float32), logits.astype(np.float32), colors.astype(np.float32),
+        SplatFrame(
+            means=means, log_scales=log_scales, quats=matrix_to_quaternion(R),
+            opacity_logits=logits, sh=colors,
+        ).map(_float32),
         look_at((0.0, 0.0, distance), (0.0, 0.0, 0.0)), intrinsics(width, height, focal),
         width, height,
     )  # fmt: skip
@@ -93,7 +100,9 @@ def random_scene(n: int, width: int = 32, height: int = 24, seed: int = 0) -> Sc
     logits = rng.normal(0.0, 2.0, n)
     colors = rng.uniform(0, 1, (n, 3))
     return Scene(
-        means.astype(np.float32), quats.astype(np.float32), log_scales.astype(np.float32),
-        logits.astype(np.float32), colors.astype(np.float32), np.eye(4),
+        SplatFrame(
+            means=means, log_scales=log_scales, quats=quats, opacity_logits=logits, sh=colors
+        ).map(_float32),
+        np.eye(4),
         intrinsics(width, height, focal), width, height,
     )  # fmt: skip
