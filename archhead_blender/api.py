@@ -22,7 +22,7 @@ from archhead_addon.backend_process import python_with_torch, train_command
 from archhead_addon.flame import load_model
 from archhead_addon.sequences import write_canonical
 from archhead_addon.sequences.demo import demo_sequence
-from archhead_addon.timing import Steps, time_calls
+from archhead_addon.timing import Steps, restart_with_threads, time_calls
 from archhead_addon.train.run_folder import RunFolder
 
 from .avatar_session import session
@@ -51,6 +51,7 @@ __all__ = [
     "render_frames",
     "render_subject",
     "resolution_for_lod",
+    "restart_with_threads",
     "scene_avatars",
     "script_args",
     "session",

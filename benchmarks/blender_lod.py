@@ -11,31 +11,24 @@ resolution (tables built), a scrub across the whole range, and a frame change se
 the memory cache. "total" is the property change to an evaluated depsgraph: handler (decode
 + writing the points) and Geometry Nodes instancing. Prints a markdown table. With --sweep,
 times only "total" at l = 0, STEP, ..., 1 (each resolution's tables built first) and writes
-them to the --json file (the report of `python -m archhead_addon.bench` reads it).
+them to the --json file (the report of `python -m benchmarks.error_vs_time` reads it).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import tempfile
 from pathlib import Path
 
-THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+import bpy
 
-
-def _ensure_two_threads() -> None:
-    if any(os.environ.get(v) != "2" for v in THREAD_VARS):
-        env = {**os.environ, **dict.fromkeys(THREAD_VARS, "2")}
-        os.execve(sys.executable, [sys.executable, __file__, *sys.argv[1:]], env)
+from archhead_blender import api
 
 
 def _ms(fn, repeats: int) -> float:
     """Median milliseconds of fn(i) over i = 0 .. repeats - 1."""
-    from archhead_blender import api
-
     return api.time_calls(fn, repeats, with_index=True).median_ms
 
 
@@ -50,10 +43,6 @@ def main(argv) -> None:
     args = parser.parse_args(argv)
     if (args.sweep is None) != (args.json is None):
         parser.error("--sweep and --json go together")
-
-    import bpy
-
-    from archhead_blender import api
 
     api.enable_addon()
     folder = Path(tempfile.mkdtemp())
@@ -148,5 +137,5 @@ def main(argv) -> None:
 
 
 if __name__ == "__main__":
-    _ensure_two_threads()
-    main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:])
+    api.restart_with_threads(2)
+    main(api.script_args(sys.argv))

@@ -12,10 +12,10 @@ from training_subject import SIZE, TINY_CONFIG, tiny_subject, write_config
 from archhead_addon.avatar.checkpoint import save_avatar
 from archhead_addon.avatar.config import AvatarConfig
 from archhead_addon.avatar.model import ArchHeadAvatar
-from archhead_addon.bench.__main__ import DOCS_REPORT, FIGURES, main
-from archhead_addon.bench.ablations import VARIANTS, variant_config
 from archhead_addon.flame.model import load_model
 from archhead_addon.train.config import TrainConfig
+from benchmarks.error_vs_time.__main__ import DOCS_REPORT, FIGURES, main
+from benchmarks.error_vs_time.ablations import VARIANTS, variant_config
 
 
 def _table(text: str, header: str) -> list[list[str]]:

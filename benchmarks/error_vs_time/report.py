@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..evaluate.lods import LodResult
-from ..io.atomic import atomic_path
+from archhead_addon.evaluate.lods import LodResult
+from archhead_addon.io.atomic import atomic_path
+
 from .stability import StabilityRow
 from .sweep import KERNEL_SIZE, LodRow
 

@@ -1,12 +1,14 @@
 """The error-against-run-time report of a trained avatar:
 
-    python -m archhead_addon.bench [--avatar out/run_cpu/avatar.npz] [--data out/subject256]
-        [--out out/report] [--docs DIR] [--step 0.05] [--test-frames N] [--no-blender]
-        [--ablations [--steps N] [--ablation-config F]]
+    python -m benchmarks.error_vs_time [--avatar out/run_cpu/avatar.npz]
+        [--data out/subject256] [--out out/report] [--docs DIR] [--step 0.05]
+        [--test-frames N] [--no-blender] [--ablations [--steps N] [--ablation-config F]]
+
+(from the checkout's root).
 
 Per level of detail (steps of --step): Gaussians, numpy decode ms (fp32, fp16), the splat
-kernel's ms at 512², Blender's update ms for a LOD change (benchmarks/blender_lod.py --sweep, in a
-child process through the bpy module), test L1 / PSNR / SSIM / ST-LPIPS; the error-against-
+kernel's ms at 512², Blender's update ms for a LOD change (benchmarks/blender_lod.py --sweep,
+in a child process through the bpy module), test L1 / PSNR / SSIM / ST-LPIPS; the error-against-
 run-time curve; the image change between neighbouring levels; the LOD 1 : LOD 0 ratios beside
 the paper's; the stability sweep; with --ablations, table 4's variants trained by the project's
 training command with the same config and the same steps each (--steps, default the config's
@@ -24,11 +26,13 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from ..io.atomic import write_bytes_atomic
-from ..io.cli import run_command
+from archhead_addon.io.atomic import write_bytes_atomic
+from archhead_addon.io.cli import run_command
+from archhead_addon.timing import Stopwatch
+
+BLENDER_LOD = Path(__file__).resolve().parents[1] / "blender_lod.py"
 
 FIGURES = ("error_vs_time.png", "lod_smoothness.png")
 DOCS_REPORT = "bench_report.md"
@@ -36,7 +40,7 @@ DOCS_REPORT = "bench_report.md"
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="python -m archhead_addon.bench", description=__doc__.split("\n\n")[0]
+        prog="python -m benchmarks.error_vs_time", description=__doc__.split("\n\n")[0]
     )
     p.add_argument(
         "--avatar",
@@ -82,15 +86,14 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def blender_update_ms(avatar: Path, step: float, repeats: int) -> dict[float, float]:
-    """{l: median ms of a LOD change in Blender} from benchmarks/blender_lod.py --sweep (a
-    checkout's benchmark, run as a module from the checkout's root)."""
+    """{l: median ms of a LOD change in Blender} from benchmarks/blender_lod.py --sweep (in a
+    child process: the bpy module)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "lod.json"
         subprocess.run(
             [
                 sys.executable,
-                "-m",
-                "benchmarks.blender_lod",
+                str(BLENDER_LOD),
                 "--checkpoint",
                 str(avatar.resolve()),
                 "--sweep",
@@ -109,18 +112,19 @@ def blender_update_ms(avatar: Path, step: float, repeats: int) -> dict[float, fl
 def run(args) -> Path:
     import torch
 
-    from ..avatar.runtime import AvatarRuntime
-    from ..evaluate.__main__ import run_resolution
-    from ..evaluate.lods import evaluate_lods
-    from ..flame.model import load_model
-    from ..train.config import TrainConfig
-    from ..train.dataset import FrameDataset
-    from ..train.perceptual import ShiftTolerantLPIPS
+    from archhead_addon.avatar.runtime import AvatarRuntime
+    from archhead_addon.evaluate.__main__ import run_resolution
+    from archhead_addon.evaluate.lods import evaluate_lods
+    from archhead_addon.flame.model import load_model
+    from archhead_addon.train.config import TrainConfig
+    from archhead_addon.train.dataset import FrameDataset
+    from archhead_addon.train.perceptual import ShiftTolerantLPIPS
+
     from . import ablations, report
     from .stability import stability_sweep
     from .sweep import lod_steps, measure_lods, smoothness
 
-    start = time.perf_counter()
+    watch = Stopwatch()
     model = load_model()
     runtime = AvatarRuntime.load(args.avatar, model)
     test = FrameDataset(args.data, run_resolution(args), model, split="test")
@@ -147,7 +151,7 @@ def run(args) -> Path:
     sections = [
         f"# ArchHead: error against run time\n\n{title}. Machine: {os.cpu_count()} CPUs "
         f"({platform.processor() or platform.machine()}), torch {torch.__version__}, "
-        f"{torch.get_num_threads()} threads. Command: `python -m archhead_addon.bench "
+        f"{torch.get_num_threads()} threads. Command: `python -m benchmarks.error_vs_time "
         f"{' '.join(args.argv)}`.",
         "## Per level of detail\n\nDecode: the numpy runtime (Blender's path), median over "
         f"the test frames. Kernel: SH colour + the C++ splat at {report.KERNEL_SIZE}², median "
@@ -190,7 +194,7 @@ def run(args) -> Path:
             "proportion), evaluated on the same test frames. The paper's numbers are its own "
             "subjects at its full GPU budget.\n\n" + report.ablation_table(results, steps)
         )
-    sections.append(f"Report time: {time.perf_counter() - start:.0f} s.")
+    sections.append(f"Report time: {watch.seconds:.0f} s.")
     path = args.out / "report.md"
     write_bytes_atomic(path, ("\n\n".join(sections) + "\n").encode())
     if args.docs is not None:

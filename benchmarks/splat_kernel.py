@@ -1,4 +1,4 @@
-"""Splat kernel benchmark: `python -m archhead_addon.splat.bench [--quick] [--no-torch]`.
+"""Splat kernel benchmark: `python benchmarks/splat_kernel.py [--quick] [--no-torch]`.
 
 Face-like scenes (`scenes.face_scene`: Gaussians over a head-sized ellipsoid 0.6 m away,
 about one texel across) at 3k / 18k / 46k Gaussians and 256^2 / 512^2. Prints a Markdown
@@ -13,12 +13,12 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import time
+from functools import partial
 
 import numpy as np
 
-from ..timing import time_calls
-from . import kernel, scenes
+from archhead_addon.splat import kernel, scenes
+from archhead_addon.timing import time_calls
 
 SIZES = (3_000, 18_000, 46_000)
 RESOLUTIONS = (256, 512)
@@ -39,23 +39,35 @@ def time_kernel(scene: scenes.Scene, threads: int, repeats: int):
 
 
 def time_torch_tiles(scene: scenes.Scene, repeats: int = 2):
+    """Best forward and best backward ms of the pure-torch tile renderer (2 torch threads)."""
     import torch
 
-    from .reference import render_tiles_torch
+    from archhead_addon.splat.reference import render_tiles_torch
 
     torch.set_num_threads(2)
     camera = (torch.tensor(scene.viewmat, dtype=torch.float32),
               torch.tensor(scene.K, dtype=torch.float32))  # fmt: skip
-    fwd, bwd = [], []
-    for _ in range(repeats):
-        params = scene.gaussians.map(lambda a: torch.tensor(a, requires_grad=True))
-        t0 = time.perf_counter()
-        out = render_tiles_torch(params, *camera, scene.width, scene.height)
-        t1 = time.perf_counter()
-        (out.rgb.sum() * 0.1).backward()
-        fwd.append(t1 - t0)
-        bwd.append(time.perf_counter() - t1)
-    return 1e3 * min(fwd), 1e3 * min(bwd)
+    times = [
+        _forward_backward_ms(
+            partial(
+                render_tiles_torch,
+                scene.gaussians.map(lambda a: torch.tensor(a, requires_grad=True)),
+                *camera,
+                scene.width,
+                scene.height,
+            )
+        )
+        for _ in range(repeats)
+    ]
+    return min(t[0] for t in times), min(t[1] for t in times)
+
+
+def _forward_backward_ms(render) -> tuple[float, float]:
+    """ms of one render() and of the backward pass of its graph."""
+    image = []
+    forward = time_calls(lambda: image.append(render()), 1).min_ms
+    backward = time_calls(lambda: (image[0].rgb.sum() * 0.1).backward(), 1).min_ms
+    return forward, backward
 
 
 def run(sizes=SIZES, resolutions=RESOLUTIONS, repeats: int = 15, torch_tiles: bool = True):

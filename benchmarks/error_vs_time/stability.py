@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..avatar.runtime import AvatarRuntime
-from ..evaluate.render import DRIVING_CODES, render_frame
+from archhead_addon.avatar.runtime import AvatarRuntime
+from archhead_addon.evaluate.render import DRIVING_CODES, render_frame
+
 from .sweep import image_change
 
 # log scales are clamped and quaternions normalised by construction; these can run away

@@ -1,7 +1,7 @@
 """Gaussian counts per level of detail and the numpy decode benchmark (markdown tables).
 
-    python -m archhead_addon.avatar.bench [--model FLAME_FILE] [--uv-obj OBJ] [--xatlas]
-                                          [--repeats 15]
+    python benchmarks/avatar_decode.py [--model FLAME_FILE] [--uv-obj OBJ] [--xatlas]
+                                       [--repeats 15]
 
 Runs with 2 BLAS / OpenMP threads (the process restarts itself with them set, since the
 thread count is fixed when numpy loads). The avatar is an untrained one of the model (the
@@ -11,27 +11,17 @@ built-in by default); the decode cost does not depend on the weights' values.
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import tempfile
 from pathlib import Path
 
-from ..timing import time_calls
+from archhead_addon.avatar.lod import resolution_for_lod
+from archhead_addon.timing import restart_with_threads, time_calls
 
-THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 PAPER_COUNTS = (45876, 2829)  # Table 3 of the paper: Gaussians at l = 0 and l = 1
-
-
-def _ensure_two_threads() -> None:
-    if any(os.environ.get(v) != "2" for v in THREAD_VARS):
-        env = {**os.environ, **dict.fromkeys(THREAD_VARS, "2")}
-        os.execve(sys.executable, [sys.executable, "-m", __spec__.name, *sys.argv[1:]], env)
 
 
 def count_table(raster, config, step: float = 0.05) -> list[tuple[float, int, int]]:
     """(l, S, count) for l = 0, step, ..., 1."""
-    from .lod import resolution_for_lod
-
     rows = []
     for i in range(round(1 / step) + 1):
         lod, size = resolution_for_lod(i * step, config.s_max, config.s_min)
@@ -60,10 +50,10 @@ def main(argv=None) -> None:
 
     import numpy as np
 
-    from ..flame.model import load_model
-    from .checkpoint import save_avatar
-    from .model import ArchHeadAvatar
-    from .runtime import AvatarRuntime
+    from archhead_addon.avatar.checkpoint import save_avatar
+    from archhead_addon.avatar.model import ArchHeadAvatar
+    from archhead_addon.avatar.runtime import AvatarRuntime
+    from archhead_addon.flame.model import load_model
 
     model = load_model(args.model)
     if args.xatlas:
@@ -130,5 +120,5 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    _ensure_two_threads()
+    restart_with_threads(2)
     main()

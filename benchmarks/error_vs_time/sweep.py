@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..avatar.runtime import AvatarRuntime
-from ..evaluate.lods import LodResult, evaluate_lods
-from ..evaluate.render import render_frame
+from archhead_addon.avatar.runtime import AvatarRuntime
+from archhead_addon.evaluate.lods import LodResult, evaluate_lods
+from archhead_addon.evaluate.render import render_frame
 
 KERNEL_SIZE = 512
 

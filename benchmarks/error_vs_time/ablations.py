@@ -8,13 +8,13 @@ import json
 import math
 import subprocess
 import sys
-import time
 from dataclasses import asdict
 from pathlib import Path
 
-from ..backend_process import train_command
-from ..train.config import TrainConfig
-from ..train.run_folder import RunFolder
+from archhead_addon.backend_process import train_command
+from archhead_addon.timing import Stopwatch
+from archhead_addon.train.config import TrainConfig
+from archhead_addon.train.run_folder import RunFolder
 
 VARIANTS = {
     "full (multi-level)": None,
@@ -50,7 +50,7 @@ def train_variants(
         folder.mkdir(parents=True, exist_ok=True)
         config = folder / "ablation_config.json"
         config.write_text(json.dumps(variant_config(base, levels, steps)))
-        start = time.perf_counter()
+        watch = Stopwatch()
         with open(run.log, "w") as log:
             subprocess.run(
                 train_command(python, data, folder, config),
@@ -58,5 +58,5 @@ def train_variants(
                 stdout=log,
                 stderr=subprocess.STDOUT,
             )
-        done[name] = (run.avatar, time.perf_counter() - start)
+        done[name] = (run.avatar, watch.seconds)
     return done

@@ -1,0 +1,49 @@
+"""The benchmarks outside the package: every benchmark command the README and docs/ name
+exists where they say, and the splat kernel benchmark prints its table."""
+
+import re
+import subprocess
+import sys
+
+import pytest
+
+# `python benchmarks/x.py`, `python scripts/x.py`, `python -m some.module`, as documented
+SCRIPT = re.compile(r"python (?:-m )?((?:benchmarks|scripts)/[\w/]+\.py)")
+MODULE = re.compile(r"python -m\s+([\w.]+)")
+
+
+def _documents(repo_root):
+    return [repo_root / "README.md", *sorted((repo_root / "docs").glob("*.md"))]
+
+
+def test_documented_commands_name_existing_files_and_modules(repo_root):
+    import importlib.util
+
+    seen = set()
+    for doc in _documents(repo_root):
+        text = doc.read_text()
+        for path in SCRIPT.findall(text):
+            assert (repo_root / path).is_file(), f"{doc.name}: {path}"
+            seen.add(path)
+        for module in MODULE.findall(text):
+            module = module.rstrip(".")
+            if module.startswith(("archhead_addon", "benchmarks")):
+                assert importlib.util.find_spec(module) is not None, f"{doc.name}: {module}"
+                seen.add(module)
+    assert {"benchmarks/splat_kernel.py", "benchmarks/avatar_decode.py"} <= seen
+    assert "benchmarks.error_vs_time" in seen
+    assert not any(m.startswith("archhead_addon.bench") or m.endswith(".bench") for m in seen)
+
+
+@pytest.mark.parametrize("extra", [["--no-torch"]])
+def test_splat_kernel_benchmark_prints_its_table(repo_root, extra):
+    out = subprocess.run(
+        [sys.executable, "benchmarks/splat_kernel.py", "--quick", "--repeats", "1", *extra],
+        cwd=repo_root,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    ).stdout
+    rows = [line for line in out.splitlines() if line.startswith("| 3,000 | 256²")]
+    assert len(rows) == 1 and "Times in ms" in out
