@@ -22,11 +22,11 @@ from archhead_addon.backend_process import python_with_torch, train_command
 from archhead_addon.flame import load_model
 from archhead_addon.sequences import write_canonical
 from archhead_addon.sequences.demo import demo_sequence
-from archhead_addon.timing import Steps, restart_with_threads, time_calls
+from archhead_addon.timing import Steps, Stopwatch, restart_with_threads, time_calls
 from archhead_addon.train.run_folder import RunFolder
 
 from .avatar_session import session
-from .batch_render import render_frames, scene_avatars
+from .batch_render import read_image, render_frames, scene_avatars
 from .decoding import decode_frames
 from .lod_driver import drive_lod_by_distance
 from .point_instances import write_points
@@ -38,6 +38,7 @@ __all__ = [
     "RunFolder",
     "SUBJECT_SAMPLES",
     "Steps",
+    "Stopwatch",
     "avatar_lod",
     "decode_frames",
     "demo_sequence",
@@ -48,6 +49,7 @@ __all__ = [
     "parse_frames",
     "point_attributes",
     "python_with_torch",
+    "read_image",
     "render_frames",
     "render_subject",
     "resolution_for_lod",

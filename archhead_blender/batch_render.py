@@ -125,6 +125,17 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
     return path
 
 
+def read_image(path) -> np.ndarray:
+    """An image file as (H,W,4) float32 RGBA, top row first, read with Blender's image
+    loader (to compare batch renders)."""
+    image = bpy.data.images.load(str(path))
+    try:
+        w, h = image.size
+        return np.array(image.pixels[:], np.float32).reshape(h, w, 4)[::-1]
+    finally:
+        bpy.data.images.remove(image)
+
+
 def write_png(path: Path, premultiplied_rgb: np.ndarray, alpha: np.ndarray) -> None:
     """An 8-bit RGBA PNG (straight alpha, as PNG defines it) from a premultiplied image."""
     rgba = np.empty((*alpha.shape, 4), np.float32)

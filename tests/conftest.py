@@ -5,14 +5,24 @@ operations 20-30x slower on a busy 2-core machine; passive waiting keeps them fa
 be set before torch or the splat kernel loads OpenMP, hence here (pytest imports conftest
 first).
 
-Markers (pyproject.toml): `blender` (real Blender through the bpy module), `slow` (training
-or Cycles renders: a minute or more on two cores), `gpu` (CUDA; skipped without it). Select
-with `-m`, e.g. `pytest -m "not slow"`.
+Markers (pyproject.toml): `blender` (real Blender through the bpy module), `slow` (a minute or
+more on two cores), `gpu` (CUDA; skipped without it). Select with `-m`, e.g.
+`pytest -m "not slow"`.
+
+Fixtures: `repo_root`; `extension_zip` (built as `make extension` builds it); `addon` (that
+zip installed and enabled in the bpy module, once per session, removed at its end);
+`tiny_checkpoint` (an untrained avatar of the built-in model); `demo_scene` (a fresh scene
+with the moving demo head imported).
 """
 
+import importlib
 import os
+import shutil
+import tempfile
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -21,6 +31,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 _ROOT = str(Path(__file__).resolve().parents[1])
 os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (_ROOT, os.environ.get("PYTHONPATH")) if p)
 
+EXTENSION_REPO = "archhead_tests"  # the extension repository the session installs into
+DEMO_FRAMES = 6
+
 
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
@@ -28,20 +41,77 @@ def repo_root() -> Path:
 
 
 @pytest.fixture(scope="session")
-def addon():
-    """The add-on, built as `make extension` builds it, installed and enabled in the bpy
-    module (once per session); the module Blender imported it as."""
-    from addon_env import installed_addon
+def extension_zip(tmp_path_factory) -> Path:
+    """The add-on's zip, built by scripts/build_extension.py (`make extension`)."""
+    from scripts.build_extension import build
 
-    return installed_addon()
+    return build(tmp_path_factory.mktemp("extension"))
 
 
 @pytest.fixture(scope="session")
-def extension_zip(addon) -> Path:
-    """The zip the `addon` fixture installed."""
-    from addon_env import state
+def addon(extension_zip):
+    """The add-on installed the way Blender does (`extensions.package_install_files`, which
+    also installs the zip's wheel of archhead_addon and archhead_blender) and enabled in the
+    bpy module; the module Blender imported it as (bl_ext.archhead_tests.archhead).
 
-    return state()["zip"]
+    At the end of the session the wheel's contents are removed by name: Blender puts an
+    extension's wheels into the user profile's shared `extensions/.local` site-packages,
+    which every later bpy process puts on sys.path, so a stale copy of the packages left
+    there would shadow the checkout. (Tests that load files may have dropped the session's
+    repository from the preferences already.)"""
+    import bpy
+
+    repo_dir = Path(tempfile.mkdtemp(prefix="archhead_ext_"))
+    bpy.context.preferences.extensions.repos.new(
+        name=EXTENSION_REPO, module=EXTENSION_REPO, custom_directory=str(repo_dir), source="USER"
+    )
+    bpy.ops.extensions.package_install_files(
+        filepath=str(extension_zip), repo=EXTENSION_REPO, enable_on_install=True
+    )
+    yield importlib.import_module(f"bl_ext.{EXTENSION_REPO}.archhead")
+    local = Path(bpy.utils.user_resource("EXTENSIONS", path=".local"))
+    for site in local.glob("lib/python*/site-packages"):
+        for name in ("archhead_addon", "archhead_blender", "archhead-*.dist-info"):
+            for path in site.glob(name):
+                shutil.rmtree(path)
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tmp_path_factory) -> Path:
+    """An untrained avatar of the built-in model (the model's own initialisation, seed 0)."""
+    import torch
+
+    from archhead_addon.avatar.checkpoint import save_avatar
+    from archhead_addon.avatar.model import ArchHeadAvatar
+    from archhead_addon.flame import load_model
+
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("checkpoint") / "tiny_avatar.npz"
+    save_avatar(path, ArchHeadAvatar.create(load_model()))
+    return path
+
+
+@pytest.fixture(scope="session")
+def demo_scene(addon):
+    """make(folder, frames=6): a fresh scene with the demo talking head imported, also
+    translating sideways (so the root bone carries a translation besides the expressions'
+    joint shift); returns (head object, sequence)."""
+    import bpy
+
+    from archhead_addon.sequences.canonical import write_canonical
+    from archhead_addon.sequences.demo import demo_sequence
+
+    def make(folder: Path, frames: int = DEMO_FRAMES):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        seq = demo_sequence(frames=frames, image_size=(64, 64))
+        x = np.linspace(-0.03, 0.03, frames)
+        seq = replace(seq, translation=np.stack([x, 0.01 * x, np.zeros(frames)], 1))
+        path = Path(folder) / "demo.npz"
+        write_canonical(seq, path)
+        assert bpy.ops.archhead.import_sequence(filepath=str(path)) == {"FINISHED"}
+        return bpy.data.objects["demo"], seq
+
+    return make
 
 
 def pytest_collection_modifyitems(config, items):
@@ -56,10 +126,3 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "gpu" in item.keywords and not cuda:
             item.add_marker(skip)
-
-
-def pytest_sessionfinish(session, exitstatus):
-    """Uninstall the session's extension, however a test installed it (addon_env)."""
-    from addon_env import uninstall_addon
-
-    uninstall_addon()

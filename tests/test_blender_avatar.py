@@ -9,8 +9,6 @@ import sys
 import bpy
 import numpy as np
 import pytest
-from addon_env import REPO_ROOT
-from avatar_env import demo_scene, load_avatar, load_rgba, tiny_checkpoint
 from bpy_extras.anim_utils import action_get_channelbag_for_slot
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
@@ -26,12 +24,13 @@ SEQ_CODES = ("expr", "jaw", "neck", "eyes", "rotation", "translation")
 
 
 @pytest.fixture(scope="module")
-def scene_setup(tmp_path_factory):
+def scene_setup(tmp_path_factory, demo_scene, tiny_checkpoint):
     folder = tmp_path_factory.mktemp("avatar")
-    checkpoint = tiny_checkpoint(folder)
-    addon, head, seq = demo_scene(folder)
-    obj = load_avatar(head, checkpoint)
-    return {"addon": addon, "head": head, "seq": seq, "obj": obj, "folder": folder}
+    head, seq = demo_scene(folder)
+    bpy.context.view_layer.objects.active = head
+    assert bpy.ops.archhead.load_avatar(filepath=str(tiny_checkpoint)) == {"FINISHED"}
+    obj = bpy.data.objects[f"{head.name}_avatar"]
+    return {"head": head, "seq": seq, "obj": obj, "folder": folder}
 
 
 @pytest.fixture
@@ -247,7 +246,7 @@ def test_ply_export_round_trip(avatar, tmp_path):
     bpy.data.meshes.remove(imported.data)
 
 
-def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
+def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path, repo_root):
     """`python scripts/batch_render.py scene.blend --exact ...` renders with the kernel;
     its image matches Cycles' render of the point instances."""
     scene = bpy.context.scene
@@ -263,7 +262,7 @@ def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
     result = subprocess.run(
         [
             sys.executable,
-            str(REPO_ROOT / "scripts/batch_render.py"),
+            str(repo_root / "scripts/batch_render.py"),
             str(blend),
             "--frames",
             "2",
@@ -278,10 +277,11 @@ def test_batch_script_exact_splat_through_the_bpy_module(avatar, tmp_path):
         timeout=300,
     )
     assert result.returncode == 0, result.stderr[-2000:]
-    exact = load_rgba(out / "frame_0002.png")
+    read_image = _batch(avatar).read_image
+    exact = read_image(out / "frame_0002.png")
     assert exact[..., 3].max() > 0.99 and exact[..., 3].min() == 0.0
     cycles_files = _batch(avatar).render_frames(bpy.context, [2], tmp_path / "cycles", lod=0.5)
-    cycles = load_rgba(cycles_files[0])
+    cycles = read_image(cycles_files[0])
     psnr = 10 * np.log10(1.0 / np.mean((_over_black(cycles) - _over_black(exact)) ** 2))
     print(f"PSNR Cycles / exact splat: {psnr:.1f} dB")
     assert psnr > 24.0, psnr
@@ -301,10 +301,10 @@ def _over_black(rgba):
     return rgba[..., :3] * rgba[..., 3:]
 
 
-def test_avatar_load_refuses_a_mismatched_checkpoint(avatar, tmp_path):
+def test_avatar_load_refuses_a_mismatched_checkpoint(avatar, tmp_path, tiny_checkpoint):
     from archhead_addon.avatar.checkpoint_format import read_checkpoint, write_checkpoint
 
-    ckpt = read_checkpoint(tiny_checkpoint(avatar["folder"]))
+    ckpt = read_checkpoint(tiny_checkpoint)
     ckpt.model_id = "flame2023"
     wrong = tmp_path / "other_model.npz"
     write_checkpoint(wrong, ckpt)

@@ -9,7 +9,6 @@ from pathlib import Path
 import bpy
 import numpy as np
 import pytest
-from avatar_env import demo_scene
 
 from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.sequences import read_sequence, write_canonical
@@ -25,9 +24,9 @@ TINY = {
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory):
+def setup(tmp_path_factory, demo_scene, addon):
     folder = tmp_path_factory.mktemp("train")
-    addon, head, seq = demo_scene(folder, frames=3)
+    head, seq = demo_scene(folder, frames=3)
     video = folder / "video"  # frames and tracking apart: the operator assembles the data
     video.mkdir()
     for t in range(len(seq)):

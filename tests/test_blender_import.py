@@ -7,7 +7,6 @@ import sys
 import bpy
 import numpy as np
 import pytest
-from addon_env import REPO_ROOT, installed_addon
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
@@ -59,8 +58,7 @@ def _extreme_sequence(model, n_frames=7, seed=0):
 
 
 @pytest.fixture(scope="module")
-def imported(tmp_path_factory):
-    addon = installed_addon()
+def imported(tmp_path_factory, addon):
     bpy.ops.wm.read_homefile(use_empty=True)
     model = add_teeth(load_model())
     seq = _extreme_sequence(model)
@@ -140,14 +138,14 @@ def test_failed_import_leaves_nothing(tmp_path, imported):
     assert {c: len(getattr(bpy.data, c)) for c in before} == before
 
 
-def test_script_imports_and_saves_blend(tmp_path):
+def test_script_imports_and_saves_blend(tmp_path, repo_root):
     seq_path = tmp_path / "clip.npz"
     write_canonical(demo_sequence(frames=8), seq_path)
     out = tmp_path / "clip.blend"
     proc = subprocess.run(
         [
             sys.executable,
-            str(REPO_ROOT / "scripts/import_sequence.py"),
+            str(repo_root / "scripts/import_sequence.py"),
             str(seq_path),
             str(out),
             "--stride",

@@ -1,7 +1,7 @@
 """Render the avatar's point instances with Cycles (and EEVEE) next to the exact splat image of
 the same Gaussians from the same camera (the pictures and PSNR in docs/blender_avatar.md).
 
-    .venv/bin/python tests/blender/render_avatar_pair.py --out docs/ [--size 256]
+    .venv/bin/python benchmarks/blender_render_pair.py --out docs/ [--size 256]
         [--samples 64] [--eevee]
 
 The avatar is an untrained one of the built-in model (its initialisation, seed 0), on the demo
@@ -15,22 +15,18 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import bpy
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(REPO / "tests")]  # a test helper, not a package
-from avatar_env import load_rgba  # noqa: E402
+from archhead_addon.io.atomic import write_bytes_atomic
+from archhead_addon.sequences import write_canonical
+from archhead_addon.sequences.demo import demo_sequence
+from archhead_addon.synthetic.png import encode_png
+from archhead_blender import api
 
-from archhead_addon.io.atomic import write_bytes_atomic  # noqa: E402
-from archhead_addon.sequences import write_canonical  # noqa: E402
-from archhead_addon.sequences.demo import demo_sequence  # noqa: E402
-from archhead_addon.synthetic.png import encode_png  # noqa: E402
-from archhead_blender import api  # noqa: E402
-
+REPO = Path(__file__).resolve().parents[1]
 FRAME = 12
 GREY = 0.12
 
@@ -58,7 +54,6 @@ def main(argv) -> None:
     from archhead_addon.flame import load_model
 
     api.enable_addon()
-    batch = api
     folder = Path(tempfile.mkdtemp(prefix="archhead_pair_"))
     torch.manual_seed(0)
     save_avatar(folder / "avatar.npz", ArchHeadAvatar.create(load_model()))
@@ -83,21 +78,19 @@ def main(argv) -> None:
     engines = ["CYCLES"] + (["BLENDER_EEVEE"] if args.eevee else [])
     rows = []
     for lod in (0.0, 1.0):
-        start = time.perf_counter()
-        (exact_path,) = batch.render_frames(
+        watch = api.Stopwatch()
+        (exact_path,) = api.render_frames(
             bpy.context, [FRAME], folder / f"exact_{lod:g}", lod=lod, exact=True
         )
-        exact = _over_grey(load_rgba(exact_path))
-        print(f"LOD {lod:g}: exact splat {time.perf_counter() - start:.1f} s")
+        exact = _over_grey(api.read_image(exact_path))
+        print(f"LOD {lod:g}: exact splat {watch.seconds:.1f} s")
         for engine in engines:
             r.engine = engine
-            start = time.perf_counter()
-            (path,) = batch.render_frames(
-                bpy.context, [FRAME], folder / f"{engine}_{lod:g}", lod=lod
-            )
-            image = _over_grey(load_rgba(path))
+            watch = api.Stopwatch()
+            (path,) = api.render_frames(bpy.context, [FRAME], folder / f"{engine}_{lod:g}", lod=lod)
+            image = _over_grey(api.read_image(path))
             print(
-                f"LOD {lod:g}: {engine} {time.perf_counter() - start:.1f} s, "
+                f"LOD {lod:g}: {engine} {watch.seconds:.1f} s, "
                 f"PSNR against the exact splat {psnr(image, exact):.2f} dB"
             )
             rows.append(
@@ -110,4 +103,4 @@ def main(argv) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:])
+    main(api.script_args(sys.argv))
