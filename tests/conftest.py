@@ -11,13 +11,15 @@ more on two cores), `gpu` (CUDA; skipped without it). Select with `-m`, e.g.
 
 Fixtures: `repo_root`; `extension_zip` (built as `make extension` builds it); `addon` (that
 zip installed and enabled in the bpy module, once per session, removed at its end);
-`tiny_checkpoint` (an untrained avatar of the built-in model); `demo_scene` (a fresh scene
-with the moving demo head imported).
+`tiny_subject` (a tiny synthetic subject to train on); `tiny_checkpoint` (an untrained avatar
+of the built-in model); `demo_scene` (a fresh scene with the moving demo head imported).
 """
 
 import importlib
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 from dataclasses import replace
 from pathlib import Path
@@ -74,6 +76,33 @@ def addon(extension_zip):
         for name in ("archhead_addon", "archhead_blender", "archhead-*.dist-info"):
             for path in site.glob(name):
                 shutil.rmtree(path)
+
+
+@pytest.fixture(scope="session")
+def tiny_subject(tmp_path_factory, repo_root) -> Path:
+    """A tiny synthetic subject rendered with Cycles through bpy (~5 s): 8 frames of 48x48 px,
+    7 train, 1 test (training_subject.FRAMES, SIZE)."""
+    from training_subject import FRAMES, SIZE
+
+    folder = tmp_path_factory.mktemp("tiny_subject")
+    subprocess.run(
+        [
+            sys.executable,
+            str(repo_root / "scripts" / "synthetic_subject.py"),
+            "--out",
+            str(folder),
+            "--frames",
+            str(FRAMES),
+            "--size",
+            str(SIZE),
+            "--samples",
+            "8",
+        ],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
+    return folder
 
 
 @pytest.fixture(scope="session")

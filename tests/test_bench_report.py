@@ -7,7 +7,7 @@ from itertools import takewhile
 
 import numpy as np
 import torch
-from training_subject import SIZE, TINY_CONFIG, tiny_subject, write_config
+from training_subject import SIZE, TINY_CONFIG, write_config
 
 from archhead_addon.avatar.checkpoint import save_avatar
 from archhead_addon.avatar.config import AvatarConfig
@@ -34,8 +34,7 @@ def test_variant_config_keeps_the_budget_and_replaces_the_levels():
         )
 
 
-def test_report_has_a_finite_row_per_lod(tmp_path_factory, tmp_path, capsys):
-    subject = tiny_subject(tmp_path_factory)
+def test_report_has_a_finite_row_per_lod(tiny_subject, tmp_path, capsys):
     torch.manual_seed(0)
     config = AvatarConfig(
         s_max=32,
@@ -55,7 +54,7 @@ def test_report_has_a_finite_row_per_lod(tmp_path_factory, tmp_path, capsys):
                 "--avatar",
                 str(avatar),
                 "--data",
-                str(subject),
+                str(tiny_subject),
                 "--out",
                 str(out),
                 "--docs",

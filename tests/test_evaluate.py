@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from training_subject import SIZE, tiny_subject
+from training_subject import SIZE
 
 from archhead_addon.avatar.checkpoint import save_avatar
 from archhead_addon.avatar.config import AvatarConfig
@@ -73,11 +73,6 @@ def test_ssim_of_one_window_by_hand():
 
 
 @pytest.fixture(scope="module")
-def subject(tmp_path_factory):
-    return tiny_subject(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
 def avatar_file(tmp_path_factory):
     """A small untrained avatar, with random feature maps (so every level differs)."""
     torch.manual_seed(0)
@@ -95,9 +90,9 @@ def avatar_file(tmp_path_factory):
     return path
 
 
-def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path, capsys):
+def test_evaluation_writes_tables_plot_and_images(tiny_subject, avatar_file, tmp_path, capsys):
     # the driver: the subject's own tracking, stored for images twice the size
-    seq = read_sequence(subject / "tracking.npz")
+    seq = read_sequence(tiny_subject / "tracking.npz")
     double = replace(seq, K=np.diag([2.0, 2.0, 1.0]) @ seq.K, image_size=(2 * SIZE, 2 * SIZE))
     write_canonical(double, tmp_path / "driver.npz")
     out = tmp_path / "eval"
@@ -107,7 +102,7 @@ def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path
                 "--avatar",
                 str(avatar_file),
                 "--data",
-                str(subject),
+                str(tiny_subject),
                 "--out",
                 str(out),
                 "--resolution",
@@ -135,7 +130,7 @@ def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path
         assert 0 < float(r["l1"]) < 1 and 0 < float(r["ssim"]) <= 1 and float(r["render_ms"]) > 0
 
     model = load_model()
-    test = FrameDataset(subject, SIZE, model, split="test")
+    test = FrameDataset(tiny_subject, SIZE, model, split="test")
     item = test[0]
     image = render_frame(
         AvatarRuntime.load(avatar_file, model),
@@ -167,9 +162,10 @@ def test_evaluation_writes_tables_plot_and_images(subject, avatar_file, tmp_path
     assert np.abs(last - np.clip(image, 0, 1)).max() <= 1 / 255 + 1e-6
 
 
-def test_bad_arguments_are_refused(subject, avatar_file, tmp_path, capsys):
+def test_bad_arguments_are_refused(tiny_subject, avatar_file, tmp_path, capsys):
     assert (
-        main(["--avatar", str(avatar_file), "--data", str(subject), "--out", str(tmp_path)]) == 2
+        main(["--avatar", str(avatar_file), "--data", str(tiny_subject), "--out", str(tmp_path)])
+        == 2
     )  # no training config beside the avatar
     assert "--resolution" in capsys.readouterr().err
     with pytest.raises(SystemExit):
@@ -178,7 +174,7 @@ def test_bad_arguments_are_refused(subject, avatar_file, tmp_path, capsys):
                 "--avatar",
                 str(avatar_file),
                 "--data",
-                str(subject),
+                str(tiny_subject),
                 "--out",
                 str(tmp_path),
                 "--lods",
@@ -187,14 +183,14 @@ def test_bad_arguments_are_refused(subject, avatar_file, tmp_path, capsys):
         )
 
 
-def test_training_frames_can_be_scored_evenly_spread(subject, avatar_file, tmp_path):
+def test_training_frames_can_be_scored_evenly_spread(tiny_subject, avatar_file, tmp_path):
     out = tmp_path / "eval"
-    args = ["--avatar", str(avatar_file), "--data", str(subject), "--out", str(out)]
+    args = ["--avatar", str(avatar_file), "--data", str(tiny_subject), "--out", str(out)]
     args += ["--resolution", str(SIZE), "--lods", "0", "--precisions", "fp32"]
     assert main([*args, "--split", "train", "--frames", "3"]) == 0
     assert "3 train frames" in (out / "metrics.md").read_text()
     model = load_model()
-    train = FrameDataset(subject, SIZE, model, split="train")
+    train = FrameDataset(tiny_subject, SIZE, model, split="train")
     runtime = AvatarRuntime.load(avatar_file, model)
     spread = [0, (len(train) - 1) / 2, len(train) - 1]
     errors = []
@@ -209,7 +205,7 @@ def test_training_frames_can_be_scored_evenly_spread(subject, avatar_file, tmp_p
     assert float(row["psnr"]) == pytest.approx(expected, rel=1e-4)
 
 
-def test_the_run_s_holdout_picks_the_test_frames(subject, avatar_file, tmp_path):
+def test_the_run_s_holdout_picks_the_test_frames(tiny_subject, avatar_file, tmp_path):
     """A run trained with "holdout": "interleaved" is scored on every tenth frame, from the
     fifth: here frame 4 of 8, not the last."""
     run = tmp_path / "run"
@@ -217,10 +213,10 @@ def test_the_run_s_holdout_picks_the_test_frames(subject, avatar_file, tmp_path)
     shutil.copy(avatar_file, run / "avatar.npz")
     (run / "config.json").write_text(json.dumps({"resolution": SIZE, "holdout": "interleaved"}))
     out = tmp_path / "eval"
-    args = ["--avatar", str(run / "avatar.npz"), "--data", str(subject), "--out", str(out)]
+    args = ["--avatar", str(run / "avatar.npz"), "--data", str(tiny_subject), "--out", str(out)]
     assert main([*args, "--lods", "0", "--precisions", "fp32"]) == 0
     assert "1 test frames" in (out / "metrics.md").read_text()
-    everything = FrameDataset(subject, SIZE, load_model(), split="all")
+    everything = FrameDataset(tiny_subject, SIZE, load_model(), split="all")
     truth = np.asarray(Image.open(out / "lods.png"))[:, :SIZE].astype(np.float32) / 255
     assert np.abs(truth - everything[4]["image"]).max() <= 1 / 255 + 1e-6
     assert np.abs(truth - everything[7]["image"]).max() > 0.05

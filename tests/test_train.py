@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 from synthetic_models import random_model
-from training_subject import TINY_CONFIG, tiny_subject, write_config
+from training_subject import TINY_CONFIG, write_config
 
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.evaluate.render import render_frame
@@ -22,18 +22,13 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def subject(tmp_path_factory):
-    return tiny_subject(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
 def model():
     return load_model()
 
 
 @pytest.fixture(scope="module")
-def dataset(subject, model):
-    return FrameDataset(subject, TINY_CONFIG["resolution"], model, split="train")
+def dataset(tiny_subject, model):
+    return FrameDataset(tiny_subject, TINY_CONFIG["resolution"], model, split="train")
 
 
 def trainer(dataset, model, out, **changes) -> Trainer:
@@ -50,12 +45,14 @@ def trainer(dataset, model, out, **changes) -> Trainer:
     )
 
 
-def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(subject, dataset, tmp_path, capsys):
+def test_tiny_run_learns_and_its_checkpoint_renders_in_numpy(
+    tiny_subject, dataset, tmp_path, capsys
+):
     out = tmp_path / "run"
     rc = main(
         [
             "--data",
-            str(subject),
+            str(tiny_subject),
             "--out",
             str(out),
             "--config",
@@ -192,16 +189,16 @@ def test_presets_load_and_bad_configs_are_named(tmp_path):
             TrainConfig.load(path)
 
 
-def test_cli_refuses_to_overwrite_or_resume_nothing(subject, tmp_path, capsys):
+def test_cli_refuses_to_overwrite_or_resume_nothing(tiny_subject, tmp_path, capsys):
     config = str(write_config(tmp_path / "tiny.json"))
     out = tmp_path / "run"
-    assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2
+    assert main(["--data", str(tiny_subject), "--out", str(out), "--resume"]) == 2
     assert "nothing to resume" in capsys.readouterr().err
     RunFolder(out).state.parent.mkdir(parents=True)
     RunFolder(out).state.write_bytes(b"")
-    assert main(["--data", str(subject), "--out", str(out), "--config", config]) == 2
+    assert main(["--data", str(tiny_subject), "--out", str(out), "--config", config]) == 2
     assert "--resume" in capsys.readouterr().err
-    assert main(["--data", str(subject), "--out", str(out), "--resume"]) == 2
+    assert main(["--data", str(tiny_subject), "--out", str(out), "--resume"]) == 2
     assert "unreadable training state" in capsys.readouterr().err
     assert (
         main(

@@ -5,7 +5,7 @@ import json
 
 import pytest
 import torch
-from training_subject import tiny_subject, write_config
+from training_subject import write_config
 
 from archhead_addon.flame.model import load_model
 from archhead_addon.train.__main__ import main as train_main
@@ -17,25 +17,22 @@ from archhead_addon.train.run_folder import RunFolder
 
 
 @pytest.fixture(scope="module")
-def subject(tmp_path_factory):
-    return tiny_subject(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def run(subject, tmp_path_factory):
+def run(tiny_subject, tmp_path_factory):
     folder = tmp_path_factory.mktemp("probe")
     config = write_config(folder / "tiny.json")
     assert (
-        train_main(["--data", str(subject), "--out", str(folder / "run"), "--config", str(config)])
+        train_main(
+            ["--data", str(tiny_subject), "--out", str(folder / "run"), "--config", str(config)]
+        )
         == 0
     )
     return folder / "run"
 
 
-def test_widened_heads_decode_the_same_gaussians(subject, run):
+def test_widened_heads_decode_the_same_gaussians(tiny_subject, run):
     model = load_model()
     state = load_state(RunFolder(run).state)
-    dataset = FrameDataset(subject, 48, model, split="train")
+    dataset = FrameDataset(tiny_subject, 48, model, split="train")
     frames = frames_on_device(dataset, torch.device("cpu"))
     narrow = Trainer.resume(
         state, run, frames, model, dataset.background, torch.device("cpu")
@@ -52,14 +49,14 @@ def test_widened_heads_decode_the_same_gaussians(subject, run):
         widen(narrow, 8, 16)
 
 
-def test_probe_trains_its_levels_and_leaves_the_run_alone(subject, run, capsys):
+def test_probe_trains_its_levels_and_leaves_the_run_alone(tiny_subject, run, capsys):
     before = {p.name: p.read_bytes() for p in run.iterdir()}
     rc = probe_main(
         [
             "--run",
             str(run),
             "--data",
-            str(subject),
+            str(tiny_subject),
             "--levels",
             "1",
             "--frame",
@@ -82,14 +79,16 @@ def test_probe_trains_its_levels_and_leaves_the_run_alone(subject, run, capsys):
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before
 
 
-def test_probe_names_bad_input(subject, run, tmp_path, capsys):
-    assert probe_main(["--run", str(tmp_path), "--data", str(subject), "--steps", "0"]) == 2
+def test_probe_names_bad_input(tiny_subject, run, tmp_path, capsys):
+    assert probe_main(["--run", str(tmp_path), "--data", str(tiny_subject), "--steps", "0"]) == 2
     err = capsys.readouterr().err
     assert str(tmp_path) in err and RunFolder(tmp_path).state.name in err
     assert (
-        probe_main(["--run", str(run), "--data", str(subject), "--steps", "0", "--frame", "99"])
+        probe_main(
+            ["--run", str(run), "--data", str(tiny_subject), "--steps", "0", "--frame", "99"]
+        )
         == 2
     )
     assert "--frame 99: the run has 7 training frames" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        probe_main(["--run", str(run), "--data", str(subject), "--levels", "1.5"])
+        probe_main(["--run", str(run), "--data", str(tiny_subject), "--levels", "1.5"])

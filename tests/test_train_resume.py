@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from training_subject import REPO_ROOT, tiny_subject, write_config
+from training_subject import REPO_ROOT, write_config
 
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.train.loop import load_state
@@ -18,18 +18,13 @@ pytestmark = pytest.mark.slow
 TOTAL = 40
 
 
-@pytest.fixture(scope="module")
-def subject(tmp_path_factory):
-    return tiny_subject(tmp_path_factory)
-
-
-def command(subject, out, *extra):
+def command(tiny_subject, out, *extra):
     return [
         sys.executable,
         "-m",
         "archhead_addon.train",
         "--data",
-        str(subject),
+        str(tiny_subject),
         "--out",
         str(out),
         "--progress-json",
@@ -53,12 +48,12 @@ def events_until(proc, done) -> list[dict]:
     pytest.fail(f"the run ended early: {proc.wait()} {proc.stderr.read()}")
 
 
-def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path):
+def test_kill_9_then_resume_continues_from_the_last_checkpoint(tiny_subject, tmp_path):
     config = write_config(
         tmp_path / "c.json", stage1_steps=TOTAL - 10, stage2_steps=10, checkpoint_every=3
     )
     out = tmp_path / "run"
-    proc = start(command(subject, out, "--config", str(config)))
+    proc = start(command(tiny_subject, out, "--config", str(config)))
     try:
         seen = events_until(proc, lambda e: e["event"] == "checkpoint" and e["step"] >= 6)
         seen += events_until(proc, lambda e: e["event"] == "step")  # past the checkpoint
@@ -71,7 +66,7 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path
     AvatarRuntime.load(RunFolder(out).avatar).decode(0.0)  # the checkpoint is whole
 
     done = subprocess.run(
-        command(subject, out, "--resume"),
+        command(tiny_subject, out, "--resume"),
         cwd=REPO_ROOT,
         capture_output=True,
         text=True,
@@ -86,12 +81,12 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(subject, tmp_path
     assert "resumed at step" in done.stderr
 
 
-def test_ctrl_c_saves_and_exits(subject, tmp_path):
+def test_ctrl_c_saves_and_exits(tiny_subject, tmp_path):
     config = write_config(
         tmp_path / "c.json", stage1_steps=TOTAL, stage2_steps=0, checkpoint_every=1000
     )
     out = tmp_path / "run"
-    proc = start(command(subject, out, "--config", str(config)))
+    proc = start(command(tiny_subject, out, "--config", str(config)))
     try:
         events_until(proc, lambda e: e["event"] == "step" and e["step"] >= 2)
         proc.send_signal(signal.SIGINT)

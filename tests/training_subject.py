@@ -1,11 +1,9 @@
-"""A tiny synthetic subject (Cycles through bpy, ~5 s) and a tiny training config, shared by
-the training and evaluation tests; rendered once per test session."""
+"""The tiny synthetic subject's size and a tiny training config, shared by the training and
+evaluation tests (the subject itself: the `tiny_subject` fixture, tests/conftest.py)."""
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -28,30 +26,6 @@ TINY_CONFIG = {
         "mapping_hidden": 16,
     },
 }
-
-
-def tiny_subject(tmp_path_factory) -> Path:
-    """8 frames of 48x48 px: 7 train, 1 test."""
-    folder = tmp_path_factory.getbasetemp() / "tiny_subject"
-    if not (folder / "tracking.npz").exists():
-        subprocess.run(
-            [
-                sys.executable,
-                str(REPO_ROOT / "scripts" / "synthetic_subject.py"),
-                "--out",
-                str(folder),
-                "--frames",
-                str(FRAMES),
-                "--size",
-                str(SIZE),
-                "--samples",
-                "8",
-            ],
-            check=True,
-            capture_output=True,
-            timeout=300,
-        )
-    return folder
 
 
 def write_config(path: Path, **changes) -> Path:
