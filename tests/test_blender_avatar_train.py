@@ -14,7 +14,7 @@ from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.sequences import read_sequence, write_canonical
 from archhead_addon.synthetic.png import encode_png
 
-pytestmark = [pytest.mark.blender, pytest.mark.slow]
+pytestmark = pytest.mark.blender
 
 TINY = {
     "lods_per_step": 2,

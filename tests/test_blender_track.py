@@ -8,7 +8,7 @@ from archhead_addon.track.real_subject import fetch_media
 from archhead_blender.avatar_objects import head_of
 from archhead_blender.tracking import current_tracking
 
-pytestmark = [pytest.mark.blender, pytest.mark.slow]
+pytestmark = pytest.mark.blender
 
 
 def test_track_video_imports_the_tracked_head(addon, tmp_path):

@@ -5,11 +5,8 @@ import json
 import subprocess
 import sys
 
-import pytest
 from PIL import Image
 from training_subject import REPO_ROOT, write_config
-
-pytestmark = pytest.mark.slow
 
 
 def test_demo_trains_renders_and_saves(tmp_path):

@@ -22,8 +22,6 @@ from archhead_addon.synthetic.trajectory import EXPRESSION_PEAKS, synthetic_sequ
 from archhead_addon.train.dataset import FrameDataset
 from archhead_addon.train.parts_mask import rasterize
 
-pytestmark = pytest.mark.slow
-
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = REPO_ROOT / "scripts" / "synthetic_subject.py"
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")

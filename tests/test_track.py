@@ -94,7 +94,6 @@ def test_embedding_places_landmarks_on_the_builtin_head(model, tmp_path):
     np.testing.assert_array_equal(again.faces, emb.faces)
 
 
-@pytest.mark.slow
 @pytest.mark.blender  # the clip is rendered with Cycles through bpy
 def test_tracker_recovers_the_codes_of_a_rendered_clip(synthetic_clip, model, tmp_path):
     truth = read_sequence(synthetic_clip / "tracking.npz")

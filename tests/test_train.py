@@ -18,8 +18,6 @@ from archhead_addon.train.dataset import FrameDataset
 from archhead_addon.train.loop import Trainer, frames_on_device, load_state
 from archhead_addon.train.run_folder import RunFolder
 
-pytestmark = pytest.mark.slow
-
 
 @pytest.fixture(scope="module")
 def model():

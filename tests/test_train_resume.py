@@ -13,8 +13,6 @@ from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.train.loop import load_state
 from archhead_addon.train.run_folder import RunFolder
 
-pytestmark = pytest.mark.slow
-
 TOTAL = 40
 
 
