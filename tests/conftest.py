@@ -8,8 +8,8 @@ first).
 Markers (pyproject.toml): `blender` (real Blender through the bpy module), `slow` (a minute or
 more on two cores, its fixtures included), `gpu` (CUDA; skipped without it). Select with `-m`,
 e.g. `pytest -m "not slow"`. No test is `slow` today: the longest (the error-against-run-time
-report's, the tracker's on a rendered clip) spend 15-26 s of CPU time, under 45 s of wall
-time even with the machine's two cores shared three ways.
+report's, the tracker's on rendered clips) spend 15-30 s of CPU time, fixtures included;
+with other jobs loading the two cores 3 to 5 times over they took 40-80 s of wall time.
 
 Fixtures: `repo_root`; `extension_zip` (built as `make extension` builds it); `addon` (that
 zip installed and enabled in the bpy module, once per session, removed at its end);
