@@ -214,3 +214,16 @@ def test_cli_refuses_to_overwrite_or_resume_nothing(tiny_subject, tmp_path, caps
     )
     error = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert error["event"] == "error" and "nowhere" in error["message"]
+
+
+def test_cli_holdout_is_kept_in_the_run_s_config(tiny_subject, tmp_path, capsys):
+    """--holdout interleaved trains without frame 4 of 8 and says so in config.json, which the
+    evaluation reads back."""
+    config = str(write_config(tmp_path / "tiny.json", stage1_steps=2, stage2_steps=1))
+    out = tmp_path / "run"
+    args = ["--data", str(tiny_subject), "--out", str(out), "--config", config]
+    assert main([*args, "--holdout", "interleaved", "--progress-json"]) == 0
+    assert json.loads(RunFolder(out).config.read_text())["holdout"] == "interleaved"
+    events = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    start = next(e for e in events if e["event"] == "start")
+    assert start["frames"] == 7

@@ -1,5 +1,5 @@
 """Train an avatar: python -m archhead_addon.train --data DIR --out DIR [--config F]
-[--resume] [--progress-json] [--flame FILE]
+[--resume] [--progress-json] [--flame FILE] [--holdout last|interleaved]
 
 DIR holds frames/, optional masks/ and parts/, and tracking.npz (train/dataset.py). The run
 writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume) and OUT/config.json, every
@@ -18,11 +18,12 @@ import os
 import signal
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..io.errors import InputError, InputWarning
-from .config import DEFAULT_PRESET, PRESETS, TrainConfig
+from .config import DEFAULT_PRESET, HOLDOUTS, PRESETS, TrainConfig
 from .progress import DONE, ERROR, START, Progress
 from .progress import INTERRUPTED as INTERRUPTED_EVENT
 from .run_folder import RunFolder
@@ -56,6 +57,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         "stdout (events: start, step, checkpoint, done, interrupted, error)",
     )
     p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
+    p.add_argument(
+        "--holdout",
+        choices=HOLDOUTS,
+        help="the test frames kept out of training: the last 10 %% (the paper's, default) or "
+        "every tenth frame; overrides the config's 'holdout'",
+    )
     return p.parse_args(argv)
 
 
@@ -103,6 +110,8 @@ def setup(args, progress: Progress) -> Trainer:
         )
     state = loop.load_state(state_path) if args.resume else None
     config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
+    if args.holdout is not None and state is None:
+        config = replace(config, holdout=args.holdout)
     if config.threads:
         torch.set_num_threads(config.threads)
     device = loop.resolve_device(config.device)
