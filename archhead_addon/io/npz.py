@@ -24,15 +24,18 @@ _MAX_HEADER = 1 << 16
 _READ_ERRORS = (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError)
 
 
-def read_npz(path, max_bytes: int = DEFAULT_MAX_BYTES) -> dict[str, np.ndarray]:
-    """Every array of the npz at `path` by key; InputError on anything malformed."""
+def read_npz(
+    path, max_bytes: int = DEFAULT_MAX_BYTES, what: str = "npz archive"
+) -> dict[str, np.ndarray]:
+    """Every array of the npz at `path` by key; InputError on anything malformed (`what`
+    names the file's kind when it is no zip archive at all)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, None, "file not found")
     with open(path, "rb") as f:
         if f.read(6) == b"\x93NUMPY":
             raise InputError(path, None, "a single .npy array, not an npz archive")
-    with open_checked(path, max_bytes) as archive:
+    with open_checked(path, max_bytes, what) as archive:
         return {
             info.filename[: -len(".npy")]: _member(archive, info, path)
             for info in archive.infolist()

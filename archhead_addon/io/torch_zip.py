@@ -217,7 +217,7 @@ def load_torch_file(path):
             path, None, "not a torch.save zip archive (truncated or another kind of file)"
         )
     max_bytes = path.stat().st_size + (1 << 20)
-    with open_checked(path) as archive:
+    with open_checked(path, what="torch.save archive") as archive:
         try:
             data, prefix, big = _pickle_entry(archive, path)
         except (zipfile.BadZipFile, zlib.error, OSError, EOFError, UnicodeDecodeError) as exc:

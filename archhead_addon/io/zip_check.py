@@ -17,12 +17,13 @@ DEFAULT_MAX_BYTES = 4 << 30  # a whole archive, uncompressed: far above any chec
 _METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
 
 
-def open_checked(path, max_bytes: int = DEFAULT_MAX_BYTES) -> zipfile.ZipFile:
-    """The archive at `path`, its directory checked; the caller closes it."""
+def open_checked(path, max_bytes: int = DEFAULT_MAX_BYTES, what="zip archive") -> zipfile.ZipFile:
+    """The archive at `path`, its directory checked; the caller closes it. `what` names the
+    kind of file in the error for one that is no zip archive at all."""
     try:
         archive = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
-        raise InputError(path, None, f"not a readable zip archive ({exc})") from exc
+        raise InputError(path, None, f"not a readable {what} ({exc})") from exc
     try:
         check_directory(archive, path, max_bytes)
     except BaseException:
