@@ -54,7 +54,9 @@ def _member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, path) -> np.ndarray
     except InputError:
         raise
     except _READ_ERRORS + (SyntaxError, TypeError) as exc:
-        raise InputError(path, key, f"unreadable npy header ({type(exc).__name__}: {exc})") from exc
+        raise InputError(
+            path, key, f"unreadable npy header (corrupt file? {type(exc).__name__}: {exc})"
+        ) from exc
     if dtype.hasobject or dtype.kind not in _KINDS or dtype.fields or dtype.subdtype:
         raise InputError(path, key, f"dtype {dtype} is not accepted (numbers and text only)")
     claimed = math.prod(shape) * dtype.itemsize
