@@ -39,7 +39,7 @@ def read_npz(
         return {
             info.filename[: -len(".npy")]: _member(archive, info, path)
             for info in archive.infolist()
-            if not info.is_dir()
+            if not info.filename.endswith("/")
         }
 
 
@@ -53,7 +53,7 @@ def _member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, path) -> np.ndarray
         shape, fortran, dtype = _header(head)
     except InputError:
         raise
-    except _READ_ERRORS + (SyntaxError, TypeError) as exc:
+    except _READ_ERRORS + (SyntaxError, TypeError, IndexError, UnicodeDecodeError) as exc:
         raise InputError(
             path, key, f"unreadable npy header (corrupt file? {type(exc).__name__}: {exc})"
         ) from exc

@@ -4,8 +4,8 @@ The C unpickler builds whatever the stream says: a "billion laughs" graph (a lis
 one memoized list twice, forty times over) is a few hundred bytes and becomes 2^40 elements
 to anything that walks it, and deep nesting overflows the recursion of every later walk.
 `scan` counts opcodes, memo entries and the stack's depth (nesting) without building
-anything, and refuses a stream past the limits; `Budget` bounds the later walk over the
-unpickled objects, which memo references (shared objects) can still multiply.
+anything, and refuses a stream past the limits. Shared references are refused by the walk
+over the unpickled objects (safe_pickle.resolve).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ MAX_OPCODES = 2_000_000  # a FLAME pickle has a few thousand; a tracker frame a 
 MAX_MEMO = 200_000
 MAX_STACK = 10_000  # the pickler batches 1,000 items per APPENDS/SETITEMS
 MAX_DEPTH = 64  # containers within containers (arrays bring at most a few)
-MAX_VISITS = 1_000_000  # objects reached by walking the result, shared ones each time
 
 
 class PickleLimitError(ValueError):
@@ -29,7 +28,7 @@ def scan(data: bytes) -> None:
     marks: list[int] = []
     memo = 0
     mark = pickletools.markobject
-    for count, (op, _arg, _pos) in enumerate(pickletools.genops(data), 1):
+    for count, (op, arg, _pos) in enumerate(pickletools.genops(data), 1):
         if count > MAX_OPCODES:
             raise PickleLimitError(f"more than {MAX_OPCODES} pickle opcodes")
         before = op.stack_before
@@ -44,6 +43,10 @@ def scan(data: bytes) -> None:
         else:
             stack = max(stack, 0) + len(op.stack_after)
         if op.name in ("PUT", "BINPUT", "LONG_BINPUT", "MEMOIZE"):
+            # Picklers number entries 0, 1, 2...; the unpickler sizes its memo table by the
+            # largest index, so one LONG_BINPUT of 2^31 would allocate 16 GiB.
+            if op.name != "MEMOIZE" and not (isinstance(arg, int) and 0 <= arg <= memo):
+                raise PickleLimitError(f"memo index {arg!r:.20} out of sequence")
             memo += 1
             if memo > MAX_MEMO:
                 raise PickleLimitError(f"more than {MAX_MEMO} memo entries")
@@ -51,20 +54,3 @@ def scan(data: bytes) -> None:
             raise PickleLimitError(
                 f"nesting deeper than this reader accepts (stack {stack}, marks {len(marks)})"
             )
-
-
-class Budget:
-    """Counts objects visited by a walk over unpickled data; shared objects count each time."""
-
-    def __init__(self, visits: int = MAX_VISITS, depth: int = MAX_DEPTH):
-        self.left, self.depth = visits, depth
-
-    def visit(self, depth: int) -> None:
-        self.left -= 1
-        if self.left < 0:
-            raise PickleLimitError(
-                f"the pickle's objects reach more than {MAX_VISITS} others "
-                "(shared references multiplying them: a 'billion laughs' graph?)"
-            )
-        if depth > self.depth:
-            raise PickleLimitError(f"containers nested deeper than {self.depth}")

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .pickle_scan import Budget, PickleLimitError, scan
+from .pickle_scan import MAX_DEPTH, PickleLimitError, scan
 
 _SLACK = 1 << 20  # bytes an array may exceed the file by (dense J_regressor, small arrays)
 
@@ -249,11 +249,20 @@ def _plain(array: np.ndarray, where: str) -> np.ndarray:
     return array
 
 
-def resolve(obj, where: str = "<input>", max_bytes: int = _SLACK, budget=None, depth=0):
-    """Turn stubs into numpy arrays, recursively through dicts, lists and tuples; the walk
-    is bounded (`Budget`): shared references count every time they are reached."""
-    budget = budget or Budget()
-    budget.visit(depth)
+def resolve(obj, where: str = "<input>", max_bytes: int = _SLACK, seen=None, depth=0):
+    """Turn stubs into numpy arrays, recursively through dicts, lists and tuples. A container
+    reached twice is refused: no file ArchHead reads shares one, and sharing is what lets a
+    few hundred bytes stand for 2^40 elements (a "billion laughs" graph)."""
+    seen = {} if seen is None else seen
+    if depth > MAX_DEPTH:
+        raise PickleLimitError(f"containers nested deeper than {MAX_DEPTH}")
+    if _holds_objects(obj):
+        if id(obj) in seen:
+            raise PickleLimitError(
+                "one object is referenced from several places "
+                "(shared references multiply it: a 'billion laughs' graph?)"
+            )
+        seen[id(obj)] = obj  # kept alive, so its id is not reused during the walk
     if isinstance(obj, ChumpyStub):
         return obj.to_array(where)
     if isinstance(obj, SparseStub):
@@ -262,12 +271,20 @@ def resolve(obj, where: str = "<input>", max_bytes: int = _SLACK, budget=None, d
         return _plain(obj, where)
     if isinstance(obj, dict):
         return {
-            k: resolve(v, f"{where}[{k!r:.40}]", max_bytes, budget, depth + 1)
-            for k, v in obj.items()
+            k: resolve(v, f"{where}[{k!r:.40}]", max_bytes, seen, depth + 1) for k, v in obj.items()
         }
     if isinstance(obj, list | tuple):
-        return type(obj)(resolve(v, where, max_bytes, budget, depth + 1) for v in obj)
+        return type(obj)(resolve(v, where, max_bytes, seen, depth + 1) for v in obj)
     return obj
+
+
+def _holds_objects(obj) -> bool:
+    """Stubs, dicts and lists with items, and tuples holding any of those."""
+    if isinstance(obj, _StateStub):
+        return True
+    if isinstance(obj, tuple):
+        return any(isinstance(v, dict | list | tuple | _StateStub) for v in obj)
+    return isinstance(obj, dict | list) and len(obj) > 0
 
 
 # What a malformed stream raises inside the unpickler or the stubs' conversion.
@@ -282,6 +299,7 @@ UNPICKLE_ERRORS = (
     UnicodeDecodeError,
     OverflowError,
     RecursionError,
+    SystemError,  # numpy's dtype.__setstate__ on arguments it does not expect
 )
 
 

@@ -6,6 +6,7 @@ reader's limit) are refused with an InputError before anything is allocated."""
 
 from __future__ import annotations
 
+import os
 import zipfile
 from collections import Counter
 
@@ -22,17 +23,17 @@ def open_checked(path, max_bytes: int = DEFAULT_MAX_BYTES, what="zip archive") -
     kind of file in the error for one that is no zip archive at all."""
     try:
         archive = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, IndexError, KeyError) as exc:
         raise InputError(path, None, f"not a readable {what} ({exc})") from exc
     try:
-        check_directory(archive, path, max_bytes)
+        check_directory(archive, path, max_bytes, os.stat(path).st_size)
     except BaseException:
         archive.close()
         raise
     return archive
 
 
-def check_directory(archive: zipfile.ZipFile, path, max_bytes: int) -> None:
+def check_directory(archive: zipfile.ZipFile, path, max_bytes: int, file_size: int) -> None:
     infos = archive.infolist()
     repeated = [name for name, n in Counter(i.filename for i in infos).items() if n > 1]
     if repeated:
@@ -40,8 +41,10 @@ def check_directory(archive: zipfile.ZipFile, path, max_bytes: int) -> None:
     total = 0
     for info in infos:
         name = info.filename
-        if info.flag_bits & 0x1:
+        if info.flag_bits & 0x41:  # traditional or strong encryption
             raise InputError(path, name, "encrypted zip member")
+        if info.flag_bits & 0x20:
+            raise InputError(path, name, "zip member in 'compressed patched data' form")
         if info.compress_type not in _METHODS:
             raise InputError(
                 path,
@@ -49,6 +52,8 @@ def check_directory(archive: zipfile.ZipFile, path, max_bytes: int) -> None:
                 f"zip compression method {info.compress_type} is not supported "
                 "(only stored and deflate)",
             )
+        if info.header_offset + info.compress_size > file_size:  # zipfile would allocate it
+            raise InputError(path, name, "member runs past the end of the file (truncated?)")
         if info.file_size > MAX_DEFLATE_RATIO * max(info.compress_size, 1) + 1024:
             raise InputError(
                 path,
