@@ -34,7 +34,7 @@ def make_sequence(n=5, n_shape=10, n_expr=7, camera=True, seed=0, **changes) -> 
         "frame_ids": np.arange(n) * 2 + 7,
         "source": "memory.npz",
         "format": "test",
-        "static_offset": rng.normal(size=(12, 3)),
+        "static_offset": 0.01 * rng.normal(size=(12, 3)),
         "eyelids": rng.uniform(size=(n, 2)),
     }
     if camera:

@@ -79,7 +79,9 @@ def test_missing_transforms_entries(tmp_path):
     _raises(tmp_path / "transforms.json", "frames[1].flame_param_path", "missing", tmp_path)
     del db["frames"][0]["fl_x"], db["fl_x"]
     (tmp_path / "transforms.json").write_text(json.dumps(db))
-    _raises(tmp_path / "transforms.json", "frames[0].fl_x", "missing or not a number", tmp_path)
+    _raises(
+        tmp_path / "transforms.json", "frames[0].fl_x", "missing or not a finite number", tmp_path
+    )
 
 
 # ---------------------------------------------------------------- wrong shapes

@@ -9,15 +9,13 @@ Keys (format version 1):
   uv, uv_faces    the layout of the avatar mesh (model + teeth), so no UV generator is needed
                   where the avatar is used (Blender's Python has no xatlas)
   identity_shape  (n_shape,) the avatar's FLAME identity code
+  checksum        sha256 of the other keys (io/checksum.py); files from before it lack it
   param/<name>    float32, every learned array of config.parameter_shapes: the feature field
                   (param/features.<S>), the mapping network and the decoder
 """
 
 from __future__ import annotations
 
-import json
-import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,13 +24,15 @@ import numpy as np
 from ..flame.model import FlameModel, load_model
 from ..flame.teeth import add_teeth
 from ..io.atomic import save_npz_atomic
+from ..io.checksum import verify, with_checksum
 from ..io.errors import InputError
+from ..io.npz import read_npz
+from ..io.schema import check_range
 from ..uv.layout import layout_id
 from .config import AvatarConfig, parameter_shapes
 
 FORMAT = "archhead-avatar"
 FORMAT_VERSION = 1
-_READ_ERRORS = (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError)
 
 
 @dataclass
@@ -62,56 +62,62 @@ def write_checkpoint(path, ckpt: AvatarCheckpoint) -> None:
         "identity_shape": np.asarray(ckpt.identity_shape, np.float32),
     }
     arrays.update({f"param/{k}": np.asarray(v, np.float32) for k, v in ckpt.params.items()})
-    save_npz_atomic(path, **arrays)
+    save_npz_atomic(path, **with_checksum(arrays))
 
 
 def read_checkpoint(path) -> AvatarCheckpoint:
-    """Read and validate; any problem is an InputError naming the file, the key and what."""
+    """Read and validate; any problem is an InputError naming the file, the key and what.
+    The checksum is checked last, so a value that is wrong in a way the checks name (NaN,
+    a shape) is reported as that."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, None, "avatar checkpoint not found")
-    try:
-        z = np.load(path, allow_pickle=False)
-    except _READ_ERRORS as exc:
+    arrays = read_npz(path, what="checkpoint (truncated or not an npz)")
+
+    def get(key, kind=None):
+        if key not in arrays:
+            raise InputError(path, key, "missing")
+        value = arrays[key]
+        if kind is not None and (value.dtype.kind not in kind or (kind == "U" and value.ndim)):
+            raise InputError(path, key, f"unexpected {value.dtype} {value.shape}")
+        return value
+
+    if "format" not in arrays or str(get("format")) != FORMAT:
+        raise InputError(path, "format", "not an ArchHead avatar checkpoint")
+    version = get("format_version")
+    if version.shape != () or version.dtype.kind not in "iu" or version != FORMAT_VERSION:
         raise InputError(
-            path, None, f"not a readable checkpoint (truncated or not an npz: {exc})"
-        ) from exc
-    if not hasattr(z, "files"):
-        raise InputError(path, None, "an npy array, not an avatar checkpoint (npz)")
-    with z:
-
-        def get(key):
-            if key not in z.files:
-                raise InputError(path, key, "missing")
-            try:
-                return z[key]
-            except _READ_ERRORS as exc:  # a damaged member fails its CRC or its header here
-                raise InputError(path, key, f"unreadable (corrupt file?): {exc}") from exc
-
-        if "format" not in z.files or str(get("format")) != FORMAT:
-            raise InputError(path, "format", "not an ArchHead avatar checkpoint")
-        version = get("format_version")
-        if version.shape != () or version.dtype.kind not in "iu" or version != FORMAT_VERSION:
-            raise InputError(
-                path,
-                "format_version",
-                f"format version {version}; this ArchHead reads version {FORMAT_VERSION}",
-            )
-        try:
-            config = AvatarConfig.from_json(str(get("config")))
-        except (ValueError, json.JSONDecodeError) as exc:
-            raise InputError(path, "config", f"invalid: {exc}") from exc
-        params = {k[len("param/") :]: get(k) for k in z.files if k.startswith("param/")}
-        ckpt = AvatarCheckpoint(
-            config=config,
-            model_id=str(get("model_id")),
-            uv=get("uv"),
-            uv_faces=get("uv_faces"),
-            identity_shape=get("identity_shape"),
-            params=params,
+            path,
+            "format_version",
+            f"format version {version}; this ArchHead reads version {FORMAT_VERSION}",
         )
-        stored_id = str(get("uv_layout_id"))
+    try:
+        config = AvatarConfig.from_json(str(get("config", "U")))
+    except (ValueError, TypeError, RecursionError) as exc:
+        raise InputError(path, "config", f"invalid: {exc}") from exc
+    params = {k[len("param/") :]: v for k, v in arrays.items() if k.startswith("param/")}
+    ckpt = AvatarCheckpoint(
+        config=config,
+        model_id=str(get("model_id", "U")),
+        uv=get("uv", "f"),
+        uv_faces=get("uv_faces", "iu"),
+        identity_shape=get("identity_shape", "f"),
+        params=params,
+    )
+    stored_id = str(get("uv_layout_id", "U"))
     _check_params(path, config, params)
+    _check_layout(path, ckpt, stored_id)
+    check_range(ckpt.identity_shape, path, "identity_shape", plausible=20.0, reason=_SIGMAS)
+    if ckpt.identity_shape.ndim != 1:
+        raise InputError(path, "identity_shape", "expected a finite 1-D array")
+    verify(arrays, path)
+    return ckpt
+
+
+_SIGMAS = "FLAME coefficients are in standard deviations"
+
+
+def _check_layout(path, ckpt: AvatarCheckpoint, stored_id: str) -> None:
     if (
         ckpt.uv.ndim != 2
         or ckpt.uv.shape[1] != 2
@@ -121,6 +127,8 @@ def read_checkpoint(path) -> AvatarCheckpoint:
         or ckpt.uv_faces.max(initial=0) >= len(ckpt.uv)
     ):
         raise InputError(path, "uv_faces", "not a (F,3) index array into uv (Vt,2)")
+    if not (np.isfinite(ckpt.uv).all() and (ckpt.uv >= 0).all() and (ckpt.uv <= 1).all()):
+        raise InputError(path, "uv", "UV coordinates must be finite and within [0, 1]")
     if ckpt.uv_layout_id != stored_id:
         raise InputError(
             path,
@@ -128,9 +136,6 @@ def read_checkpoint(path) -> AvatarCheckpoint:
             f"{stored_id} does not match the stored layout "
             f"({ckpt.uv_layout_id}); the file is damaged",
         )
-    if ckpt.identity_shape.ndim != 1 or not np.isfinite(ckpt.identity_shape).all():
-        raise InputError(path, "identity_shape", "expected a finite 1-D array")
-    return ckpt
 
 
 def _check_params(path, config: AvatarConfig, params: dict) -> None:
@@ -145,6 +150,8 @@ def _check_params(path, config: AvatarConfig, params: dict) -> None:
         value = params[name]
         if tuple(value.shape) != shape:
             raise InputError(path, key, f"shape {tuple(value.shape)}, the config needs {shape}")
+        if value.dtype.kind != "f":
+            raise InputError(path, key, f"expected floats, found {value.dtype}")
         if not np.isfinite(value).all():
             raise InputError(path, key, "contains NaN or Inf")
 

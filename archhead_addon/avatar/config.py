@@ -39,6 +39,7 @@ class AvatarConfig:
     pe_centre: tuple[float, float, float] = (0.0, 0.0, 0.0)  # head centre, metres
 
     def __post_init__(self):
+        _check_types_and_limits(self)
         if not 1 <= self.s_min <= self.s_max:
             raise ValueError(f"need 1 <= s_min <= s_max, got {self.s_min}, {self.s_max}")
         if len(set(self.levels)) != len(self.levels) or any(s < 1 for s in self.levels):
@@ -103,6 +104,50 @@ class AvatarConfig:
             return cls(**data)
         except TypeError as exc:
             raise ValueError(str(exc)) from exc
+
+
+# Upper limits of the size fields: far above the paper's model, below what would exhaust
+# memory the moment a model is built (a feature map of 2^20 texels a side).
+SIZE_LIMITS = {
+    "s_max": 4096,
+    "s_min": 4096,
+    "feature_dim": 1024,
+    "n_expr": 10_000,
+    "drive_dim": 1024,
+    "pe_freqs": 30,
+    "mapping_hidden": 4096,
+    "hidden": 4096,
+    "colour_hidden": 4096,
+    "head_layers": 16,
+}
+MAX_LEVEL = 4096
+
+
+def _check_types_and_limits(config: AvatarConfig) -> None:
+    """ValueError naming the field: ints that are not ints, numbers that are not finite
+    (NaN passes every comparison, so `tau <= 0` alone let a NaN tau through), sizes above
+    SIZE_LIMITS."""
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if f.name in SIZE_LIMITS:
+            if not _is_int(value) or not 0 <= value <= SIZE_LIMITS[f.name]:
+                raise ValueError(f"{f.name} must be an integer in 0..{SIZE_LIMITS[f.name]}")
+        elif f.name == "levels":
+            if not all(_is_int(s) and s <= MAX_LEVEL for s in value) or len(value) > 8:
+                raise ValueError(f"levels must be at most 8 integers up to {MAX_LEVEL}")
+        elif isinstance(value, tuple):
+            if len(value) != 3 or not all(_is_real(v) for v in value):
+                raise ValueError(f"{f.name} must be three finite numbers")
+        elif not _is_real(value):
+            raise ValueError(f"{f.name} must be a finite number, got {value!r:.40}")
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 # Table 4 of the paper: the full model and its ablations, as config changes

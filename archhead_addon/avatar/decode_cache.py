@@ -1,6 +1,7 @@
 """Decoded frames kept for playback: in memory (least recently used out, by bytes) and,
 optionally, on disk as one npz per frame (written atomically, so render-farm machines can
-share a cache folder and a crash never leaves a torn file).
+share a cache folder and a crash never leaves a torn file) with a checksum of its arrays: a
+file that fails it, or any other check, is deleted and its frame decoded again.
 
 A frame is named by `frame_key`: the avatar (checkpoint contents, identity, precision), the
 codes and the level of detail, never the frame number, so an edit to any code makes a new
@@ -10,14 +11,17 @@ key and two frames with the same codes share one entry.
 from __future__ import annotations
 
 import hashlib
-import zipfile
 from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
 
 from ..io.atomic import save_npz_atomic
-from ..splat.frame import FIELDS, SplatFrame
+from ..io.checksum import KEY, verify, with_checksum
+from ..io.errors import InputError
+from ..io.npz import read_npz
+from ..io.schema import check_finite
+from ..splat.frame import SplatFrame
 
 
 def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
@@ -79,15 +83,43 @@ class DiskCache:
         return self.folder / f"{key}.npz"
 
     def get(self, key: str) -> SplatFrame | None:
+        """The frame stored under `key`, or None: absent, or failing its checks (then the
+        file is deleted, so the frame is decoded and stored again)."""
         path = self.path(key)
         if not path.is_file():
             return None
         try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {name: z[name] for name in FIELDS}
-                return SplatFrame(**arrays, resolution=int(z["resolution"]))
-        except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError):
+            return read_frame(path)
+        except InputError:
+            path.unlink(missing_ok=True)
             return None
 
     def put(self, key: str, frame: SplatFrame) -> None:
-        save_npz_atomic(self.path(key), **frame.arrays(), resolution=np.int64(frame.resolution))
+        arrays = {**frame.arrays(), "resolution": np.int64(frame.resolution)}
+        save_npz_atomic(self.path(key), **with_checksum(arrays))
+
+
+_WIDTHS = {"means": (3,), "log_scales": (3,), "quats": (4,), "opacity_logits": (), "sh": (16, 3)}
+MAX_FRAME_BYTES = 1 << 30  # a frame of 60,000 Gaussians is 15 MB
+
+
+def read_frame(path) -> SplatFrame:
+    """A cache file, checked: its checksum (required: every cache file has one), keys,
+    float32 arrays of one length, finite values. InputError otherwise."""
+    arrays = read_npz(path, max_bytes=MAX_FRAME_BYTES)
+    if KEY not in arrays:
+        raise InputError(path, KEY, "missing (a cache file from before checksums)")
+    verify(arrays, path)
+    n = None
+    for name, width in _WIDTHS.items():
+        value = arrays.get(name)
+        if value is None or value.dtype != np.float32 or value.shape[1:] != width:
+            raise InputError(path, name, f"missing or not float32 (N, {width})")
+        n = len(value) if n is None else n
+        if len(value) != n:
+            raise InputError(path, name, f"{len(value)} rows, 'means' has {n}")
+        check_finite(value, path, name, along="Gaussian")
+    resolution = arrays.get("resolution")
+    if resolution is None or resolution.shape != () or resolution.dtype.kind not in "iu":
+        raise InputError(path, "resolution", "missing or not an integer")
+    return SplatFrame(**{k: arrays[k] for k in _WIDTHS}, resolution=int(resolution))

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..io.atomic import atomic_path
 from ..io.errors import InputError
+from ..io.schema import check_finite, check_range
 
 _PLY_TYPES = {
     "char": "i1",
@@ -80,35 +81,22 @@ def write_ply(path, means, log_scales, quats, opacity_logits, sh) -> None:
         f.write(np.ascontiguousarray(rows, "<f4").tobytes())
 
 
+MAX_HEADER = 1 << 16
+
+
 def read_ply(path) -> dict[str, np.ndarray]:
-    """The vertex properties of a binary little-endian PLY, by name (any scalar types)."""
+    """The vertex properties of a binary little-endian PLY, by name (any scalar types);
+    float properties must be finite. InputError names the file and the property."""
     path = Path(path)
-    with open(path, "rb") as f:
-        data = f.read()
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(path, None, f"unreadable ({exc})") from exc
+    end = data.find(b"end_header", 0, MAX_HEADER)
+    if not data.startswith(b"ply") or end < 0 or data.find(b"\n", end) < 0:
         raise InputError(path, None, "not a PLY file (no 'ply' magic or no end_header)")
     body = data.index(b"\n", end) + 1
-    lines = data[:body].decode("ascii", "replace").splitlines()
-    if "format binary_little_endian 1.0" not in lines:
-        raise InputError(path, "format", "only binary_little_endian PLY files are read")
-    fields, count, element = [], None, None
-    for line in lines:
-        tokens = line.split()
-        if tokens[:1] == ["element"]:
-            element = tokens[1]
-            if element == "vertex":
-                count = int(tokens[2])
-            elif count is None:
-                raise InputError(path, f"element {element}", "the vertex element must come first")
-            else:
-                break  # elements after the vertices are not read
-        elif tokens[:1] == ["property"] and element == "vertex":
-            if tokens[1] == "list" or tokens[1] not in _PLY_TYPES:
-                raise InputError(path, tokens[-1], f"unsupported property type {tokens[1]!r}")
-            fields.append((tokens[2], _PLY_TYPES[tokens[1]]))
-    if count is None:
-        raise InputError(path, "element vertex", "missing")
+    fields, count = _header(path, data[:body].decode("ascii", "replace").splitlines())
     dtype = np.dtype(fields)
     if len(data) - body < count * dtype.itemsize:
         raise InputError(
@@ -118,22 +106,77 @@ def read_ply(path) -> dict[str, np.ndarray]:
             f"{count * dtype.itemsize} bytes, {len(data) - body} present",
         )
     table = np.frombuffer(data, dtype, count, body)
-    return {name: table[name].copy() for name, _ in fields}
+    out = {name: table[name].copy() for name, _ in fields}
+    for name, value in out.items():
+        check_finite(value, path, name, along="vertex")
+    return out
 
 
-def rows_to_gaussians(props: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """`read_ply` output back to means, log_scales, quats, opacity_logits, sh (N,K,3)."""
+def _header(path, lines: list[str]) -> tuple[list, int]:
+    if "format binary_little_endian 1.0" not in lines:
+        raise InputError(path, "format", "only binary_little_endian PLY files are read")
+    fields, count, element = [], None, None
+    for line in lines:
+        tokens = line.split()
+        if tokens[:1] == ["element"]:
+            if len(tokens) != 3 or not tokens[2].isdigit():
+                raise InputError(path, "element", f"malformed line {line[:60]!r}")
+            element = tokens[1]
+            if element == "vertex":
+                count = int(tokens[2])
+            elif count is None:
+                raise InputError(path, f"element {element}", "the vertex element must come first")
+            else:
+                break  # elements after the vertices are not read
+        elif tokens[:1] == ["property"] and element == "vertex":
+            if len(tokens) != 3 or tokens[1] not in _PLY_TYPES:
+                raise InputError(path, tokens[-1], f"unsupported property {line[:60]!r}")
+            if tokens[2] in {name for name, _ in fields}:
+                raise InputError(path, tokens[2], "property given twice")
+            fields.append((tokens[2], _PLY_TYPES[tokens[1]]))
+    if count is None:
+        raise InputError(path, "element vertex", "missing")
+    if not fields:
+        raise InputError(path, "element vertex", "has no properties")
+    return fields, count
+
+
+def rows_to_gaussians(props: dict[str, np.ndarray], path=None) -> dict[str, np.ndarray]:
+    """`read_ply` output back to means, log_scales, quats, opacity_logits, sh (N,K,3).
+    Missing properties and zero quaternions are InputErrors; values past plausible ranges
+    (a bit flip in a float's exponent, usually) give an InputWarning."""
     n_rest = len([k for k in props if re.fullmatch(r"f_rest_\d+", k)])
+    if n_rest % 3:
+        raise InputError(path, "f_rest", f"{n_rest} higher SH values: not 3 per band")
 
     def stack(names):
-        return np.stack([props[k] for k in names], axis=1)
+        for name in names:
+            if name not in props:
+                raise InputError(path, name, "missing")
+        return np.stack([props[k] for k in names], axis=1).astype(np.float32)
 
     dc = stack([f"f_dc_{i}" for i in range(3)])
-    rest = stack([f"f_rest_{i}" for i in range(n_rest)]).reshape(len(dc), 3, n_rest // 3)
-    return {
+    rest = stack([f"f_rest_{i}" for i in range(n_rest)]) if n_rest else np.zeros((len(dc), 0))
+    out = {
         "means": stack("xyz"),
         "log_scales": stack([f"scale_{i}" for i in range(3)]),
         "quats": stack([f"rot_{i}" for i in range(4)]),
-        "opacity_logits": props["opacity"],
-        "sh": np.concatenate([dc[:, None], np.swapaxes(rest, 1, 2)], axis=1),
+        "opacity_logits": stack(["opacity"])[:, 0],
+        "sh": np.concatenate(
+            [dc[:, None], np.swapaxes(rest.reshape(len(dc), 3, n_rest // 3), 1, 2)], axis=1
+        ),
     }
+    zero = ~(np.abs(out["quats"]).max(axis=1) > 0)
+    if zero.any():
+        raise InputError(path, "rot_0", f"zero quaternion at vertex index {int(np.argmax(zero))}")
+    for key, limit, reason in _PLAUSIBLE:
+        check_range(out[key], path, key, plausible=limit, reason=reason)
+    return out
+
+
+_PLAUSIBLE = (
+    ("means", 1e3, "metres from the origin"),
+    ("log_scales", 20.0, "log standard deviations; e^20 m"),
+    ("opacity_logits", 1e3, "logits; beyond ±20 the opacity is 0 or 1 anyway"),
+    ("sh", 1e3, "SH colour coefficients"),
+)

@@ -12,14 +12,15 @@ identity then expression), `posedirs` (V,3,36), `J_regressor` (5,V), `weights` (
 from __future__ import annotations
 
 import hashlib
-import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..io.errors import InputError, warn_input
+from ..io.npz import read_npz
 from ..io.safe_pickle import safe_load
+from ..io.schema import check_range, integers, numeric
 
 JOINT_NAMES = ("global", "neck", "jaw", "eye_left", "eye_right")
 N_JOINTS = len(JOINT_NAMES)
@@ -95,11 +96,7 @@ def load_model(path=None) -> FlameModel:
     if not path.is_file():
         raise InputError(path, None, "FLAME model file not found")
     if path.suffix.lower() == ".npz":
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
-            raise InputError(path, None, f"not a readable npz file ({exc})") from exc
+        arrays = read_npz(path, what="npz file")
     else:
         arrays = safe_load(path)
         if not isinstance(arrays, dict):
@@ -110,17 +107,21 @@ def load_model(path=None) -> FlameModel:
 
 
 def _get(arrays, key, source, ndim, dtype=np.float64):
+    """A key as `dtype` with `ndim` dimensions: integer keys must hold whole numbers, float
+    ones finite values within float32's range (the runtime's)."""
     if key not in arrays:
         raise InputError(source, key, "missing")
-    try:
-        a = np.asarray(arrays[key], dtype=dtype)
-    except (TypeError, ValueError) as exc:
-        raise InputError(source, key, f"not a numeric array ({exc})") from exc
+    if dtype == np.float64:
+        a = numeric(arrays[key], source, key)
+    else:
+        a = integers(arrays[key], source, key)
     if a.ndim != ndim:
         raise InputError(source, key, f"expected {ndim} dimensions, found shape {a.shape}")
-    if a.dtype.kind == "f" and not np.isfinite(a).all():
-        raise InputError(source, key, "contains NaN or Inf")
-    return a
+    if dtype == np.float64:
+        check_range(a, source, key)
+    elif dtype == np.uint8 and a.size and (a.min() < 0 or a.max() > 255):
+        raise InputError(source, key, "values outside 0..255")
+    return a.astype(dtype)
 
 
 def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
@@ -129,9 +130,10 @@ def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
     n_v = v.shape[0]
     if v.shape[1] != 3 or n_v == 0:
         raise InputError(source, "v_template", f"expected (V,3), found {v.shape}")
+    check_range(v, source, "v_template", plausible=10.0, reason="metres; a head is 0.3 m")
     faces = _get(arrays, "f", source, 2, np.int64)
-    if faces.shape[1] != 3 or faces.min(initial=0) < 0 or faces.max(initial=0) >= n_v:
-        raise InputError(source, "f", f"expected (F,3) indices below {n_v}")
+    if faces.shape[1:] != (3,) or len(faces) == 0 or faces.min() < 0 or faces.max() >= n_v:
+        raise InputError(source, "f", f"expected (F,3) indices below {n_v}, F > 0")
     shapedirs = _get(arrays, "shapedirs", source, 3)
     posedirs = _get(arrays, "posedirs", source, 3)
     jreg = _get(arrays, "J_regressor", source, 2)
@@ -157,12 +159,17 @@ def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
         )
     parents = _parents(kintree, source)
     n_total = shapedirs.shape[2]
-    n_shape = int(arrays["n_shape"]) if "n_shape" in arrays else min(300, n_total)
+    n_shape = min(300, n_total)
+    if "n_shape" in arrays:
+        n_shape = integers(arrays["n_shape"], source, "n_shape")
+        if n_shape.shape not in ((), (1,)):
+            raise InputError(source, "n_shape", f"expected one integer, found {n_shape.shape}")
+        n_shape = int(n_shape.reshape(()))
     if not 0 <= n_shape <= n_total:
         raise InputError(source, "n_shape", f"{n_shape} outside 0..{n_total}")
     if n_total - n_shape == 0:
         warn_input(source, "shapedirs", "no expression components; expressions will be ignored")
-    model_id = str(arrays["model_id"]) if "model_id" in arrays else _topology_id(v, faces)
+    model_id = _model_id(arrays, source) if "model_id" in arrays else _topology_id(v, faces)
     opt = {}
     for key, name, dtype, ndim in (
         ("vt", "uv", np.float64, 2),
@@ -213,13 +220,24 @@ def _check_optional(opt: dict, n_v: int, n_f: int, source) -> None:
         raise InputError(source, "vt" if "uv" not in opt else "ft", "vt and ft come together")
     if "uv_faces" in opt:
         ft, n_vt = opt["uv_faces"], opt["uv"].shape[0]
-        if ft.shape != (n_f, 3) or ft.min() < 0 or ft.max() >= n_vt:
+        if opt["uv"].shape[1:] != (2,):
+            raise InputError(source, "vt", f"expected (Vt, 2), found {opt['uv'].shape}")
+        if ft.shape != (n_f, 3) or ft.min(initial=0) < 0 or ft.max(initial=0) >= n_vt:
             raise InputError(source, "ft", f"expected ({n_f}, 3) indices below {n_vt}")
     for key in ("lip_ring_upper", "lip_ring_lower"):
-        if key in opt and (opt[key].min() < 0 or opt[key].max() >= n_v):
+        if key in opt and (opt[key].min(initial=0) < 0 or opt[key].max(initial=0) >= n_v):
             raise InputError(source, key, f"vertex indices outside 0..{n_v - 1}")
     if "vertex_parts" in opt and opt["vertex_parts"].shape != (n_v,):
         raise InputError(source, "vertex_parts", f"expected ({n_v},)")
+    if "albedo" in opt and (opt["albedo"].shape[2] != 3 or 0 in opt["albedo"].shape):
+        raise InputError(source, "albedo", f"expected (H, W, 3), found {opt['albedo'].shape}")
+
+
+def _model_id(arrays, source) -> str:
+    value = arrays["model_id"]
+    if not isinstance(value, str | np.ndarray) or np.ndim(value) != 0 or len(str(value)) > 200:
+        raise InputError(source, "model_id", "expected a short string")
+    return str(value)
 
 
 def _topology_id(v: np.ndarray, faces: np.ndarray) -> str:

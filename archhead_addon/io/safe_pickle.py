@@ -4,10 +4,16 @@
 below: numpy's array constructors, and stubs for chumpy and scipy.sparse objects (neither
 package is imported; a stub keeps the pickled state and is turned into a numpy array).
 Any other name is refused with an `InputError` before anything is called.
+
+Sizes are bounded too (io/pickle_scan.py): the opcode stream is scanned before unpickling
+(opcodes, memo entries, nesting), every array a constructor would allocate must fit in the
+file's size (plus 1 MiB: a sparse matrix becomes dense), and the walk that resolves stubs
+counts shared references each time they are reached.
 """
 
 from __future__ import annotations
 
+import functools
 import io
 import pickle
 from pathlib import Path
@@ -15,6 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .pickle_scan import MAX_DEPTH, PickleLimitError, scan
+
+_SLACK = 1 << 20  # bytes an array may exceed the file by (dense J_regressor, small arrays)
 
 
 class _StateStub:
@@ -34,8 +43,8 @@ class ChumpyStub(_StateStub):
 
     def to_array(self, where: str) -> np.ndarray:
         state = self.__dict__.get("_state")
-        if isinstance(state, dict) and "x" in state:
-            return np.asarray(resolve(state["x"], where))
+        if isinstance(state, dict) and isinstance(state.get("x"), np.ndarray):
+            return _plain(state["x"], where)
         raise ValueError(f"{where}: chumpy object without an 'x' array cannot be read")
 
 
@@ -44,25 +53,62 @@ class SparseStub(_StateStub):
 
     fmt = "csc"
 
-    def to_array(self, where: str) -> np.ndarray:
+    def to_array(self, where: str, max_bytes: int) -> np.ndarray:
         s = self.__dict__.get("_state")
         if not isinstance(s, dict):
             raise ValueError(f"{where}: sparse matrix without state")
-        shape = tuple(int(n) for n in s.get("_shape", s.get("shape", ())))
+        shape = tuple(_count(n, where) for n in s.get("_shape", s.get("shape", ())))
         if len(shape) != 2:
             raise ValueError(f"{where}: sparse matrix has no 2-D shape")
-        data = np.asarray(s["data"], dtype=np.float64)
+        _check_size(shape, 8, max_bytes, where)
+        data = _vector(s, "data", np.float64, where)
         dense = np.zeros(shape, dtype=np.float64)
         if self.fmt == "coo":
-            np.add.at(dense, (np.asarray(s["row"]), np.asarray(s["col"])), data)
-            return dense
-        indices, indptr = np.asarray(s["indices"]), np.asarray(s["indptr"])
-        major = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
-        if self.fmt == "csc":  # indptr runs over columns
-            np.add.at(dense, (indices, major), data)
+            rows, cols = _vector(s, "row", np.int64, where), _vector(s, "col", np.int64, where)
         else:
-            np.add.at(dense, (major, indices), data)
+            indices, indptr = (
+                _vector(s, "indices", np.int64, where),
+                _vector(s, "indptr", np.int64, where),
+            )
+            n_major = shape[1] if self.fmt == "csc" else shape[0]
+            if len(indptr) != n_major + 1 or (np.diff(indptr) < 0).any() or indptr[0] != 0:
+                raise ValueError(f"{where}: sparse matrix with an inconsistent indptr")
+            major = np.repeat(np.arange(n_major), np.diff(indptr))
+            rows, cols = (indices, major) if self.fmt == "csc" else (major, indices)
+        if not len(rows) == len(cols) == len(data):
+            raise ValueError(
+                f"{where}: sparse matrix with {len(data)} values for {len(rows)} indices"
+            )
+        for axis, index in enumerate((rows, cols)):
+            if len(index) and (index.min() < 0 or index.max() >= shape[axis]):
+                raise ValueError(f"{where}: sparse matrix index outside its shape {shape}")
+        np.add.at(dense, (rows, cols), data)
         return dense
+
+
+def _count(n, where: str) -> int:
+    if not isinstance(n, int | np.integer) or n < 0:
+        raise ValueError(f"{where}: bad sparse matrix shape entry {n!r:.40}")
+    return int(n)
+
+
+def _vector(state: dict, key: str, dtype, where: str) -> np.ndarray:
+    value = state.get(key)
+    if not isinstance(value, np.ndarray) or value.ndim != 1 or value.dtype.kind not in "biuf":
+        raise ValueError(f"{where}: sparse matrix '{key}' is not a numeric vector")
+    return value.astype(dtype)
+
+
+def _check_size(shape, itemsize: int, max_bytes: int, where: str) -> None:
+    """Refuse an allocation a file of this size cannot hold (ints: no overflow)."""
+    n = itemsize
+    for d in shape:
+        n *= int(d)
+    if n > max_bytes:
+        raise ValueError(
+            f"{where}: an array of shape {tuple(shape)} ({n} bytes) is larger than the "
+            f"file could hold ({max_bytes} bytes)"
+        )
 
 
 class _CscStub(SparseStub):
@@ -84,27 +130,48 @@ def _latin1_encode(text, encoding="utf-8"):
     return text.encode("latin1")
 
 
-def _reconstructor(cls, base, state):
+def _reconstructor(max_bytes, cls, base, state):
     """copyreg._reconstructor, restricted to classes this module already allowed."""
     if isinstance(cls, type) and issubclass(cls, _StateStub):
         return cls.__new__(cls)
     if cls is np.ndarray:
-        return np.ndarray.__new__(cls, *(state or ((0,), np.float64)))
+        shape, dtype = (tuple(state[0]), np.dtype(state[1])) if state else ((0,), np.float64)
+        _check_size(shape, np.dtype(dtype).itemsize, max_bytes, "ndarray")
+        return np.ndarray.__new__(cls, shape, dtype)
     raise pickle.UnpicklingError(f"reconstruction of {cls!r} is not allowed")
 
 
+def _checked_reconstruct(max_bytes, subtype, shape, dtype):
+    """numpy's `_reconstruct` (an empty array that BUILD then fills), its size bounded."""
+    if subtype is not np.ndarray:
+        raise pickle.UnpicklingError(f"numpy reconstruction of {subtype!r} is not allowed")
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    dtype = _checked_dtype(max_bytes, dtype)
+    _check_size(shape, dtype.itemsize, max_bytes, "ndarray")
+    return np.ndarray.__new__(subtype, shape, dtype)
+
+
+def _checked_dtype(max_bytes, *args):
+    dtype = np.dtype(*args)
+    if dtype.hasobject or dtype.itemsize > max_bytes:
+        raise pickle.UnpicklingError(f"dtype {dtype} is not allowed")
+    return dtype
+
+
+def _checked_bytearray(max_bytes, *args):
+    if args and not isinstance(args[0], bytes | bytearray | str):
+        raise pickle.UnpicklingError("bytearray from anything but bytes is not allowed")
+    return bytearray(*args)
+
+
 def _numpy_names() -> dict[tuple[str, str], object]:
-    names: dict[tuple[str, str], object] = {
-        ("numpy", "ndarray"): np.ndarray,
-        ("numpy", "dtype"): np.dtype,
-    }
     try:
         from numpy._core import multiarray  # numpy 2
     except ImportError:
         from numpy.core import multiarray  # numpy 1.x
 
+    names: dict[tuple[str, str], object] = {("numpy", "ndarray"): np.ndarray}
     for mod in ("numpy.core.multiarray", "numpy._core.multiarray"):
-        names[(mod, "_reconstruct")] = multiarray._reconstruct
         names[(mod, "scalar")] = multiarray.scalar
     for mod in ("numpy.core.numeric", "numpy._core.numeric"):
         names[(mod, "_frombuffer")] = _frombuffer
@@ -129,26 +196,37 @@ _BUILTINS = {
     "object": object,
     "set": set,
     "frozenset": frozenset,
-    "bytearray": bytearray,
     "complex": complex,
     "slice": slice,
 }
 
 
 class RestrictedUnpickler(pickle.Unpickler):
-    """Resolves only allow-listed names; `extra` adds (module, name) -> object pairs."""
+    """Resolves only allow-listed names; `extra` adds (module, name) -> object pairs.
+    Constructors that allocate refuse arrays above `max_bytes`."""
 
-    def __init__(self, file, *, source="<input>", extra=None, **kwargs):
+    def __init__(self, file, *, source="<input>", extra=None, max_bytes=_SLACK, **kwargs):
         kwargs.setdefault("encoding", "latin1")  # Python 2 pickles (FLAME 2020)
         super().__init__(file, **kwargs)
         self._source = source
-        self._allowed = {**_numpy_names(), **(extra or {})}
+        sized = {
+            ("numpy", "dtype"): _checked_dtype,
+            ("builtins", "bytearray"): _checked_bytearray,
+            ("__builtin__", "bytearray"): _checked_bytearray,
+            ("copy_reg", "_reconstructor"): _reconstructor,
+            ("copyreg", "_reconstructor"): _reconstructor,
+            ("numpy.core.multiarray", "_reconstruct"): _checked_reconstruct,
+            ("numpy._core.multiarray", "_reconstruct"): _checked_reconstruct,
+        }
+        self._allowed = {
+            **_numpy_names(),
+            **{k: functools.partial(f, max_bytes) for k, f in sized.items()},
+            **(extra or {}),
+        }
 
     def find_class(self, module: str, name: str):
         if (module, name) in self._allowed:
             return self._allowed[(module, name)]
-        if module in ("copy_reg", "copyreg") and name == "_reconstructor":
-            return _reconstructor
         if module in ("__builtin__", "builtins") and name in _BUILTINS:
             return _BUILTINS[name]
         if (module, name) == ("_codecs", "encode"):
@@ -165,15 +243,82 @@ class RestrictedUnpickler(pickle.Unpickler):
         )
 
 
-def resolve(obj, where: str = "<input>"):
-    """Turn stubs into numpy arrays, recursively through dicts, lists and tuples."""
-    if isinstance(obj, (ChumpyStub, SparseStub)):
+def _plain(array: np.ndarray, where: str) -> np.ndarray:
+    if array.dtype.hasobject:
+        raise ValueError(f"{where}: an array of Python objects is not read")
+    return array
+
+
+def resolve(obj, where: str = "<input>", max_bytes: int = _SLACK, seen=None, depth=0):
+    """Turn stubs into numpy arrays, recursively through dicts, lists and tuples. A container
+    reached twice is refused: no file ArchHead reads shares one, and sharing is what lets a
+    few hundred bytes stand for 2^40 elements (a "billion laughs" graph)."""
+    seen = {} if seen is None else seen
+    if depth > MAX_DEPTH:
+        raise PickleLimitError(f"containers nested deeper than {MAX_DEPTH}")
+    if _holds_objects(obj):
+        if id(obj) in seen:
+            raise PickleLimitError(
+                "one object is referenced from several places "
+                "(shared references multiply it: a 'billion laughs' graph?)"
+            )
+        seen[id(obj)] = obj  # kept alive, so its id is not reused during the walk
+    if isinstance(obj, ChumpyStub):
         return obj.to_array(where)
+    if isinstance(obj, SparseStub):
+        return obj.to_array(where, max_bytes)
+    if isinstance(obj, np.ndarray):
+        return _plain(obj, where)
     if isinstance(obj, dict):
-        return {k: resolve(v, f"{where}[{k!r}]") for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(resolve(v, where) for v in obj)
+        return {
+            k: resolve(v, f"{where}[{k!r:.40}]", max_bytes, seen, depth + 1) for k, v in obj.items()
+        }
+    if isinstance(obj, list | tuple):
+        return type(obj)(resolve(v, where, max_bytes, seen, depth + 1) for v in obj)
     return obj
+
+
+def _holds_objects(obj) -> bool:
+    """Stubs, dicts and lists with items, and tuples holding any of those."""
+    if isinstance(obj, _StateStub):
+        return True
+    if isinstance(obj, tuple):
+        return any(isinstance(v, dict | list | tuple | _StateStub) for v in obj)
+    return isinstance(obj, dict | list) and len(obj) > 0
+
+
+# What a malformed stream raises inside the unpickler or the stubs' conversion.
+UNPICKLE_ERRORS = (
+    pickle.UnpicklingError,
+    EOFError,
+    ValueError,
+    TypeError,
+    AttributeError,
+    IndexError,
+    KeyError,
+    UnicodeDecodeError,
+    OverflowError,
+    RecursionError,
+    SystemError,  # numpy's dtype.__setstate__ on arguments it does not expect
+)
+
+
+def unpickle(data: bytes, name: str, *, unpickler=RestrictedUnpickler, max_bytes=None, **kwargs):
+    """Scan (pickle_scan.scan), unpickle and resolve `data`; InputError on any failure.
+    Arrays may take `max_bytes` (default: the pickle's size plus 1 MiB)."""
+    max_bytes = max_bytes or len(data) + _SLACK
+    try:
+        scan(data)
+        obj = unpickler(io.BytesIO(data), source=name, max_bytes=max_bytes, **kwargs).load()
+        return resolve(obj, name, max_bytes)
+    except InputError:
+        raise
+    except PickleLimitError as exc:
+        raise InputError(name, None, f"refused: {exc}") from exc
+    except UNPICKLE_ERRORS as exc:
+        raise InputError(
+            name, None, f"not a readable pickle ({type(exc).__name__}: {exc})"
+        ) from exc
 
 
 def safe_load(source, *, extra=None, **kwargs):
@@ -181,30 +326,13 @@ def safe_load(source, *, extra=None, **kwargs):
     name = "<bytes>"
     if isinstance(source, (str, Path)):
         name = str(source)
-        data = Path(source).read_bytes()
+        try:
+            data = Path(source).read_bytes()
+        except OSError as exc:
+            raise InputError(name, None, f"unreadable ({exc})") from exc
     elif isinstance(source, (bytes, bytearray)):
         data = bytes(source)
     else:
         name = getattr(source, "name", name)
         data = source.read()
-    try:
-        obj = RestrictedUnpickler(io.BytesIO(data), source=name, extra=extra, **kwargs).load()
-    except InputError:
-        raise
-    except (
-        pickle.UnpicklingError,
-        EOFError,
-        ValueError,
-        TypeError,
-        AttributeError,
-        IndexError,
-        KeyError,
-        UnicodeDecodeError,
-    ) as exc:
-        raise InputError(
-            name, None, f"not a readable pickle ({type(exc).__name__}: {exc})"
-        ) from exc
-    try:
-        return resolve(obj, name)
-    except ValueError as exc:
-        raise InputError(name, None, str(exc)) from exc
+    return unpickle(data, name, extra=extra, **kwargs)

@@ -19,12 +19,15 @@ to functions that build numpy arrays (bounds-checked views of the storage bytes,
 every other name is refused before anything is called. Tensors come back as numpy arrays
 (bfloat16 as float32, the only lossless numpy type for it); numpy arrays inside stay arrays.
 The legacy pre-1.6 format (one pickle stream, no zip) is refused with a message saying so.
+The archive's directory is checked first (io/zip_check.py), the pickle is bounded like any
+other (io/pickle_scan.py), and no tensor may need more bytes than the archive holds (zero
+strides let a few stored bytes claim a huge tensor).
 """
 
 from __future__ import annotations
 
 import collections
-import io
+import functools
 import math
 import pickle
 import zipfile
@@ -34,7 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .safe_pickle import RestrictedUnpickler, resolve
+from .safe_pickle import RestrictedUnpickler, unpickle
+from .zip_check import open_checked
 
 # torch.save's legacy format starts with a pickled int, this magic number (protocol 2, LONG1).
 _LEGACY_MAGIC = b"\x80\x02\x8a\x0a" + (0x1950A86A20F9469CFC6C).to_bytes(10, "little")
@@ -54,8 +58,6 @@ _TYPED_STORAGES = {
     "ComplexFloatStorage": "c8",
 }
 _V3_DTYPES = {"uint16": "u2", "uint32": "u4", "uint64": "u8"}
-# Zero strides let a few stored bytes claim a huge tensor; no tracker file comes near this.
-_MAX_ELEMENTS = 1 << 28
 
 
 class _StorageType:
@@ -75,16 +77,19 @@ class _TorchDtype:
 class _Storage:
     """One storage's elements as a flat read-only numpy array."""
 
-    def __init__(self, array: np.ndarray, bfloat16: bool = False, big_endian: bool = False):
+    def __init__(
+        self, array: np.ndarray, max_bytes: int, bfloat16: bool = False, big_endian: bool = False
+    ):
         self.array, self.bfloat16, self.big_endian = array, bfloat16, big_endian
+        self.max_bytes = max_bytes
 
     def view(self, offset, size, stride) -> np.ndarray:
         """The tensor `as_strided(storage, size, stride, offset)`, checked against the bounds."""
         size, stride = _int_tuple(size, "size"), _int_tuple(stride, "stride")
         if len(size) != len(stride) or not isinstance(offset, int) or offset < 0:
             raise ValueError(f"bad tensor layout: offset {offset}, size {size}, stride {stride}")
-        if math.prod(size) > _MAX_ELEMENTS:
-            raise ValueError(f"tensor of size {size} is larger than this reader accepts")
+        if math.prod(size) * self.array.itemsize > self.max_bytes:
+            raise ValueError(f"tensor of size {size} needs more bytes than the file holds")
         if 0 in size:
             out = np.empty(size, dtype=self.array.dtype)
         else:
@@ -126,7 +131,7 @@ def _rebuild_tensor_v3(storage, offset, size, stride, requires_grad, hooks, dtyp
     raw = storage.array
     usable = raw.size - raw.size % dtype.dtype.itemsize
     typed = raw[:usable].view(dtype.dtype.newbyteorder(">" if storage.big_endian else "<"))
-    return _Storage(typed).view(offset, size, stride)
+    return _Storage(typed, storage.max_bytes).view(offset, size, stride)
 
 
 def _rebuild_parameter(data, requires_grad, hooks, state=None):
@@ -147,9 +152,10 @@ ALLOWED_NAMES: dict[tuple[str, str], object] = {
 
 
 class _TorchUnpickler(RestrictedUnpickler):
-    def __init__(self, file, archive: zipfile.ZipFile, prefix: str, big_endian: bool, source):
-        super().__init__(file, source=source, extra=ALLOWED_NAMES)
+    def __init__(self, file, *, archive, prefix: str, big_endian: bool, source, max_bytes):
+        super().__init__(file, source=source, extra=ALLOWED_NAMES, max_bytes=max_bytes)
         self._archive, self._prefix, self._big = archive, prefix, big_endian
+        self._max_bytes = max_bytes
         self._storages: dict[str, _Storage] = {}
 
     def persistent_load(self, pid):
@@ -160,6 +166,7 @@ class _TorchUnpickler(RestrictedUnpickler):
             and isinstance(pid[1], _StorageType)
             and isinstance(pid[2], str)
             and isinstance(pid[4], int)
+            and 0 <= pid[4] * pid[1].dtype.itemsize <= self._max_bytes
         ):
             raise pickle.UnpicklingError(f"unsupported persistent id {pid!r:.80}")
         _, stype, key, _location, numel = pid
@@ -176,7 +183,10 @@ class _TorchUnpickler(RestrictedUnpickler):
                 )
             array = np.frombuffer(raw, dtype=dtype, count=numel)
             self._storages[key] = _Storage(
-                array, bfloat16=stype.name == "BFloat16Storage", big_endian=self._big
+                array,
+                self._max_bytes,
+                bfloat16=stype.name == "BFloat16Storage",
+                big_endian=self._big,
             )
         return self._storages[key]
 
@@ -206,50 +216,42 @@ def load_torch_file(path):
         raise InputError(
             path, None, "not a torch.save zip archive (truncated or another kind of file)"
         )
-    try:
-        with zipfile.ZipFile(path) as archive:
-            pickles = [
-                n for n in archive.namelist() if n.endswith("/data.pkl") and n.count("/") == 1
-            ]
-            if len(pickles) != 1:
-                raise InputError(
-                    path,
-                    None,
-                    f"expected one '<name>/data.pkl' entry in the zip "
-                    f"archive, found {len(pickles)}",
-                )
-            prefix = pickles[0][: -len("data.pkl")]
-            names = set(archive.namelist())
-            order = (
-                archive.read(prefix + "byteorder").decode("ascii", "replace").strip()
-                if prefix + "byteorder" in names
-                else "little"
-            )
-            if order not in ("little", "big"):
-                raise InputError(path, None, f"unknown byteorder '{order}' in the archive")
-            data = archive.read(pickles[0])
-            obj = _TorchUnpickler(
-                io.BytesIO(data), archive, prefix, order == "big", source=str(path)
-            ).load()
-    except InputError:
-        raise
-    except (
-        zipfile.BadZipFile,
-        zlib.error,
-        OSError,
-        EOFError,
-        pickle.UnpicklingError,
-        ValueError,
-        TypeError,
-        AttributeError,
-        IndexError,
-        KeyError,
-        UnicodeDecodeError,
-    ) as exc:
+    max_bytes = path.stat().st_size + (1 << 20)
+    with open_checked(path, what="torch.save archive") as archive:
+        try:
+            data, prefix, big = _pickle_entry(archive, path)
+        except (zipfile.BadZipFile, zlib.error, OSError, EOFError, UnicodeDecodeError) as exc:
+            raise InputError(
+                path, None, f"corrupt torch.save archive ({type(exc).__name__}: {exc})"
+            ) from exc
+        unpickler = functools.partial(
+            _TorchUnpickler, archive=archive, prefix=prefix, big_endian=big
+        )
+        try:
+            return unpickle(data, str(path), unpickler=unpickler, max_bytes=max_bytes)
+        except InputError as exc:
+            if exc.path == str(path) and exc.problem.startswith("not a readable pickle"):
+                raise InputError(path, None, "corrupt torch.save archive: " + exc.problem) from exc
+            raise
+        except (zipfile.BadZipFile, zlib.error, OSError) as exc:  # a storage fails its CRC
+            raise InputError(
+                path, None, f"corrupt torch.save archive ({type(exc).__name__}: {exc})"
+            ) from exc
+
+
+def _pickle_entry(archive: zipfile.ZipFile, path) -> tuple[bytes, str, bool]:
+    """data.pkl's bytes, the archive's folder prefix and whether it is big-endian."""
+    pickles = [n for n in archive.namelist() if n.endswith("/data.pkl") and n.count("/") == 1]
+    if len(pickles) != 1:
         raise InputError(
-            path, None, f"corrupt torch.save archive ({type(exc).__name__}: {exc})"
-        ) from exc
-    try:
-        return resolve(obj, str(path))
-    except ValueError as exc:
-        raise InputError(path, None, str(exc)) from exc
+            path,
+            None,
+            f"expected one '<name>/data.pkl' entry in the zip archive, found {len(pickles)}",
+        )
+    prefix = pickles[0][: -len("data.pkl")]
+    order = "little"
+    if prefix + "byteorder" in archive.namelist():
+        order = archive.read(prefix + "byteorder").decode("ascii", "replace").strip()
+    if order not in ("little", "big"):
+        raise InputError(path, None, f"unknown byteorder '{order:.40}' in the archive")
+    return archive.read(pickles[0]), prefix, order == "big"

@@ -80,6 +80,8 @@ def read_canonical(path, *, fps=None) -> Sequence:
             "format_version",
             f"expected an integer scalar, found {version.dtype} {version.shape}",
         )
+    if int(version) < 1:
+        raise InputError(path, "format_version", f"version {int(version)}: versions start at 1")
     if int(version) > FORMAT_VERSION:
         raise InputError(
             path,

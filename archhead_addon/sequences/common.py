@@ -3,36 +3,23 @@
 from __future__ import annotations
 
 import re
-import zipfile
-import zlib
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from ..io.errors import InputError, warn_input
+from ..io.npz import read_npz
+from ..io.schema import check_finite, numeric
 from .sequence import DEFAULT_FPS
 
 _MISSING = object()
 
 
 def load_npz(path) -> dict[str, np.ndarray]:
-    """All arrays of an npz archive; corrupt, truncated or pickled content is an InputError."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, None, "file not found")
-    try:
-        loaded = np.load(path, allow_pickle=False)
-        if not isinstance(loaded, np.lib.npyio.NpzFile):
-            raise InputError(path, None, "a single .npy array, not an npz archive")
-        with loaded as z:
-            return {k: z[k] for k in z.files}
-    except InputError:
-        raise
-    except (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError) as exc:
-        raise InputError(
-            path, None, f"not a readable npz archive ({type(exc).__name__}: {exc})"
-        ) from exc
+    """All arrays of an npz archive, each header checked before its array is read
+    (io/npz.py); corrupt, truncated or pickled content is an InputError."""
+    return read_npz(path)
 
 
 def _describe(shape) -> str:
@@ -60,12 +47,7 @@ def get(
         if default is not _MISSING:
             return default
         raise InputError(path, label, "missing")
-    try:
-        value = np.asarray(arrays[key], dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(
-            path, label, f"not a numeric array ({type(arrays[key]).__name__})"
-        ) from exc
+    value = numeric(arrays[key], path, label)
     if not any(
         len(s) == value.ndim
         and all(isinstance(d, str) or d == n for d, n in zip(s, value.shape, strict=True))
@@ -73,15 +55,9 @@ def get(
     ):
         want = " or ".join(_describe(s) for s in shapes)
         raise InputError(path, label, f"expected shape {want}, found {_describe(value.shape)}")
-    bad = ~np.isfinite(value)
-    if bad.any():
-        if frame is not None:
-            where = f" (frame {frame})"
-        elif along:
-            where = f" at {along} index {int(np.argmax(bad.reshape(len(value), -1).any(1)))}"
-        else:
-            where = ""
-        raise InputError(path, label, "NaN or Inf" + where)
+    if frame is not None and not np.isfinite(value).all():
+        raise InputError(path, label, f"NaN or Inf (frame {frame})")
+    check_finite(value, path, label, along)
     return value
 
 

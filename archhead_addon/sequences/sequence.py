@@ -22,6 +22,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from ..io.errors import InputError, warn_input
+from .validation import check_values
 
 DEFAULT_FPS = 25.0
 """Frame rate assumed (with a warning) for formats that do not store one."""
@@ -118,6 +119,7 @@ class Sequence:
                     f"NaN or Inf at frame index {t} (frame id {self.frame_ids[t]})",
                 )
         self._validate_once_per_sequence()
+        check_values(self)
         return self
 
     def _validate_once_per_sequence(self) -> None:

@@ -23,12 +23,12 @@ eyes_pose -> eyes. No frame rate is stored.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..io.errors import InputError, warn_input
+from ..io.json_input import json_number, load_json
 from .cameras import intrinsics, w2c_from_opengl_c2w
 from .common import get, load_npz, numbered_files, resolve_fps
 from .sequence import Sequence
@@ -127,10 +127,7 @@ def _load_frames(files: list[Path]) -> list[tuple[Path, int, dict, dict]]:
     """(json file, index, frame, top level) for every frame of the transforms files."""
     out = []
     for file in files:
-        try:
-            top = json.loads(file.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(file, None, f"not a readable JSON file ({exc})") from exc
+        top = load_json(file)
         frames = top.get("frames") if isinstance(top, dict) else None
         if not isinstance(frames, list) or not all(isinstance(f, dict) for f in frames):
             raise InputError(file, "frames", "missing or not a list of objects")
@@ -145,6 +142,8 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
     for file, i, frame, _ in frames:
         if not isinstance(frame.get("timestep_index"), int):
             raise InputError(file, f"frames[{i}].timestep_index", "missing or not an integer")
+        if not isinstance(frame.get("camera_index", 0), int):
+            raise InputError(file, f"frames[{i}].camera_index", "not an integer")
     cameras = sorted({frame.get("camera_index", 0) for _, _, frame, _ in frames})
     chosen = cameras[0] if camera is None else camera
     if chosen not in cameras:
@@ -172,13 +171,14 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
         rel = frame.get("flame_param_path")
         if not isinstance(rel, str):
             raise InputError(file, f"frames[{i}].flame_param_path", "missing")
+        if not (folder / rel).resolve().is_relative_to(folder.resolve()):
+            raise InputError(file, f"frames[{i}].flame_param_path", "outside the sequence folder")
         rows.append(_rows(load_npz(folder / rel), folder / rel, frame=t, single=True))
         values = {}
         for key in _INTRINSICS:
-            value = frame.get(key, top.get(key))
-            if not isinstance(value, int | float):
-                raise InputError(file, f"frames[{i}].{key}", "missing or not a number")
-            values[key] = value
+            values[key] = json_number(
+                frame.get(key, top.get(key)), file, f"frames[{i}].{key}", minimum=-1e9
+            )
         sizes.add((int(values["h"]), int(values["w"])))
         Ks.append(intrinsics(values["fl_x"], values["fl_y"], values["cx"], values["cy"]))
         c2w = get(

@@ -16,6 +16,9 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from ..avatar.config import AvatarConfig
+from ..io.errors import InputError
+from ..io.json_input import load_json
+from .config_ranges import check_ranges
 
 HOLDOUTS = ("last", "interleaved")  # which frames test (dataset.split_indices)
 
@@ -105,16 +108,18 @@ class TrainConfig:
         for key, kind in (("lr", LearningRates), ("loss", LossWeights)):
             if key in data:
                 data[key] = _nested(kind, data[key], key)
-        return _nested(cls, data, "config")
+        return check_ranges(_nested(cls, data, "config"))
 
     @classmethod
     def load(cls, path) -> TrainConfig:
-        """A config file, or a preset name (PRESETS). ValueError names the file."""
+        """A config file, or a preset name (PRESETS). InputError names the file (and key)."""
         path = config_path(path)
+        data = load_json(path)
         try:
-            return cls.from_dict(json.loads(path.read_text()))
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{path}: {exc}") from exc
+            return cls.from_dict(data)
+        except ValueError as exc:
+            key, problem = getattr(exc, "key", None), getattr(exc, "problem", str(exc))
+            raise InputError(path, key, problem) from exc
 
 
 def config_path(path_or_preset) -> Path:

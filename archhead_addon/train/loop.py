@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import json
 import math
-import pickle
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,8 +50,8 @@ from .losses import TrainingLoss
 from .perceptual import ShiftTolerantLPIPS
 from .progress import StepReport
 from .run_folder import RunFolder
+from .state_file import STATE_FORMAT, STATE_VERSION, read_train_state
 
-STATE_FORMAT, STATE_VERSION = "archhead-train-state", 1
 EMA = 0.9  # smoothing of the seconds-per-step estimate
 
 
@@ -314,22 +313,25 @@ class Trainer:
 
 
 def load_state(path) -> dict:
-    """A training state file (tensors on the CPU), checked for its format and version."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
-        raise ValueError(f"{path}: unreadable training state ({exc})") from exc
-    if (
-        not isinstance(state, dict)
-        or state.get("format") != STATE_FORMAT
-        or state.get("version") != STATE_VERSION
-    ):
-        raise ValueError(f"{path}: not an ArchHead training state of version {STATE_VERSION}")
+    """A training state file (tensors on the CPU), read without torch.load and checked key
+    by key (state_file.py); InputError names the key."""
+    state = _as_tensors(read_train_state(path))
     return state
 
 
 def state_config(state: dict) -> TrainConfig:
     return TrainConfig.from_dict(json.loads(state["config"]))
+
+
+def _as_tensors(value):
+    """The checked state's numpy arrays as CPU tensors, through dicts, lists and tuples."""
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(value)
+    if isinstance(value, dict):
+        return {k: _as_tensors(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_as_tensors(v) for v in value)
+    return value
 
 
 def _to_cpu(value):

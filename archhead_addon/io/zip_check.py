@@ -1,0 +1,70 @@
+"""Zip archives (npz, torch.save files) checked from their central directory before any
+member is read: what Python's zipfile would fail on with a raw traceback (deflate64,
+encryption), what it would silently resolve (duplicate names: the last one wins), and sizes
+that no real file has (a member claiming more than deflate can expand to, or more than the
+reader's limit) are refused with an InputError before anything is allocated."""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from collections import Counter
+
+from .errors import InputError
+
+# Deflate expands at most ~1032:1; a member declaring more than this lies about its size.
+MAX_DEFLATE_RATIO = 1100
+DEFAULT_MAX_BYTES = 4 << 30  # a whole archive, uncompressed: far above any checkpoint
+_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
+
+
+def open_checked(path, max_bytes: int = DEFAULT_MAX_BYTES, what="zip archive") -> zipfile.ZipFile:
+    """The archive at `path`, its directory checked; the caller closes it. `what` names the
+    kind of file in the error for one that is no zip archive at all."""
+    try:
+        archive = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, IndexError, KeyError) as exc:
+        raise InputError(path, None, f"not a readable {what} ({exc})") from exc
+    try:
+        check_directory(archive, path, max_bytes, os.stat(path).st_size)
+    except BaseException:
+        archive.close()
+        raise
+    return archive
+
+
+def check_directory(archive: zipfile.ZipFile, path, max_bytes: int, file_size: int) -> None:
+    infos = archive.infolist()
+    repeated = [name for name, n in Counter(i.filename for i in infos).items() if n > 1]
+    if repeated:
+        raise InputError(path, repeated[0], "duplicate member name in the zip archive")
+    total = 0
+    for info in infos:
+        name = info.filename
+        if info.flag_bits & 0x41:  # traditional or strong encryption
+            raise InputError(path, name, "encrypted zip member")
+        if info.flag_bits & 0x20:
+            raise InputError(path, name, "zip member in 'compressed patched data' form")
+        if info.compress_type not in _METHODS:
+            raise InputError(
+                path,
+                name,
+                f"zip compression method {info.compress_type} is not supported "
+                "(only stored and deflate)",
+            )
+        if info.header_offset + info.compress_size > file_size:  # zipfile would allocate it
+            raise InputError(path, name, "member runs past the end of the file (truncated?)")
+        if info.file_size > MAX_DEFLATE_RATIO * max(info.compress_size, 1) + 1024:
+            raise InputError(
+                path,
+                name,
+                f"claims {info.file_size} bytes from {info.compress_size} "
+                "compressed: more than deflate can expand (a zip bomb or a damaged directory)",
+            )
+        total += info.file_size
+    if total > max_bytes:
+        raise InputError(
+            path,
+            None,
+            f"members hold {total} bytes uncompressed, above this reader's limit of {max_bytes}",
+        )

@@ -1,0 +1,931 @@
+"""A deterministic corpus of malformed inputs for every reader ArchHead has, and the runner
+that feeds them through with a time limit (tests/test_fuzz_inputs.py; the table in
+docs/input_validation.md is printed by `python tests/fuzz_corpus.py`).
+
+Each reader starts from one valid file (`SEEDS`) and gets byte-level damage (empty files,
+truncation, bit flips, zeroed runs, random bytes) plus damage aware of its container: keys
+dropped or given NaN, Inf, implausible or out-of-range values, wrong dtypes and shapes; npy
+header bombs, zip bombs, duplicate zip members, deflate64 and encrypted members; pickle memo
+bombs ("billion laughs"), deep nesting and code-execution attempts that would create a
+marker file. Every file is read in a worker process under a time limit, with tracemalloc
+measuring the peak allocation. Outcomes:
+
+  error      InputError (the reader refused it, naming file and key)
+  warning    read, with an InputWarning (implausible values)
+  same       read, the result equal to the seed's (the damage touched nothing used)
+  changed    read without a word, the result differs from the seed's (garbage let through
+             where no check can tell: a flipped mantissa bit in a plausible value)
+  raw        any other exception: a raw traceback
+  hang       over the time limit
+  alloc      a peak allocation above ALLOC_FACTOR x the input's size + ALLOC_SLACK
+  nonfinite  NaN or Inf in what the reader returned
+  code       the marker file exists: code from the file ran
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+import pickle
+import struct
+import sys
+import tempfile
+import time
+import tracemalloc
+import warnings
+import zipfile
+from collections import Counter
+from dataclasses import fields, is_dataclass
+from pathlib import Path
+
+import numpy as np
+
+SEED = 16
+TIME_LIMIT_S = 5.0
+ALLOC_FACTOR, ALLOC_SLACK = 8, 4 << 20
+OUTCOMES = ("error", "warning", "same", "changed", "raw", "hang", "alloc", "nonfinite", "code")
+F32 = np.float32
+
+
+# ------------------------------------------------------------------------- valid seeds
+
+
+def _flame_arrays():
+    sys.path.insert(0, str(Path(__file__).parent))
+    from synthetic_models import random_model_arrays
+
+    return random_model_arrays(n_verts=40, n_shape=6, n_expr=5)
+
+
+def _sequence_arrays():
+    rng = np.random.default_rng(1)
+    n = 4
+    K = np.tile([[500.0, 0, 128], [0, 500, 128], [0, 0, 1]], (n, 1, 1))
+    w2c = np.tile(np.eye(4), (n, 1, 1))
+    w2c[:, 2, 3] = 1.0
+    return {
+        "format_version": np.int64(1),
+        "fps": np.float64(25),
+        "frame_ids": np.arange(n, dtype=np.int64),
+        "shape": rng.normal(size=(n, 6)),
+        "expr": rng.normal(size=(n, 5)),
+        "jaw": 0.1 * rng.normal(size=(n, 3)),
+        "neck": 0.1 * rng.normal(size=(n, 3)),
+        "eyes": 0.1 * rng.normal(size=(n, 6)),
+        "rotation": 0.1 * rng.normal(size=(n, 3)),
+        "translation": 0.01 * rng.normal(size=(n, 3)),
+        "source_format": np.str_("vhap"),
+        "source_path": np.str_("x"),
+        "K": K,
+        "w2c": w2c,
+        "image_size": np.array([256, 256]),
+    }
+
+
+def _vhap_arrays(n=1, seed=2):
+    rng = np.random.default_rng(seed)
+    return {
+        "shape": rng.normal(size=(6,)).astype(F32),
+        "expr": rng.normal(size=(n, 5)).astype(F32),
+        "rotation": 0.1 * rng.normal(size=(n, 3)).astype(F32),
+        "neck_pose": 0.1 * rng.normal(size=(n, 3)).astype(F32),
+        "jaw_pose": 0.1 * rng.normal(size=(n, 3)).astype(F32),
+        "eyes_pose": 0.1 * rng.normal(size=(n, 6)).astype(F32),
+        "translation": 0.01 * rng.normal(size=(n, 3)).astype(F32),
+    }
+
+
+def _vhap_transforms():
+    c2w = np.eye(4)
+    c2w[2, 3] = 1.0
+    frames = [
+        {
+            "timestep_index": t,
+            "camera_index": 0,
+            "flame_param_path": f"flame_param/{t:05d}.npz",
+            "transform_matrix": c2w.tolist(),
+        }
+        for t in range(2)
+    ]
+    return {
+        "fl_x": 500.0,
+        "fl_y": 500.0,
+        "cx": 128.0,
+        "cy": 128.0,
+        "w": 256,
+        "h": 256,
+        "frames": frames,
+    }
+
+
+def _metrical_frame():
+    rng = np.random.default_rng(3)
+    rot6 = np.array([[1, 0, 0, 0, 1, 0]], F32)
+    return {
+        "flame": {
+            "exp": rng.normal(size=(1, 5)).astype(F32),
+            "shape": rng.normal(size=(1, 6)).astype(F32),
+            "jaw": rot6,
+            "eyes": np.tile(rot6, (1, 2)),
+            "eyelids": np.zeros((1, 2), F32),
+        },
+        "opencv": {
+            "R": np.eye(3, dtype=F32)[None],
+            "t": np.array([[0, 0, 1]], F32),
+            "K": np.array([[[500, 0, 128], [0, 500, 128], [0, 0, 1]]], F32),
+        },
+        "img_size": np.array([256, 256]),
+        "frame_id": "00001",
+        "global_step": 100,
+    }
+
+
+def _fht_arrays():
+    rng = np.random.default_rng(5)
+    return {
+        "shape": rng.normal(size=(1, 6)).astype(F32),
+        "exp": rng.normal(size=(1, 5)).astype(F32),
+        "head_pose": np.zeros((1, 3), F32),
+        "jaw_pose": 0.1 * rng.normal(size=(1, 3)).astype(F32),
+        "neck_pose": np.zeros((1, 3), F32),
+        "eye_pose": np.zeros((1, 6), F32),
+        "cam": np.array([[0.1, 0, 0, 0, 0, 1]], F32),
+        "fov": np.array([20.0], F32),
+        "K": np.array([[[700, 0, 128], [0, 700, 128], [0, 0, 1]]], F32),
+    }
+
+
+def _clip():
+    rng = np.random.default_rng(7)
+    return {"exp": rng.normal(size=(5, 5)).astype(F32), "jaw": np.zeros((5, 3), F32), "fps": 30.0}
+
+
+def _checkpoint_arrays():
+    from archhead_addon.avatar.checkpoint_format import AvatarCheckpoint, write_checkpoint
+    from archhead_addon.avatar.config import AvatarConfig, parameter_shapes
+
+    config = AvatarConfig(
+        s_max=8, s_min=4, levels=(4,), feature_dim=2, n_expr=3, drive_dim=2, pe_freqs=1,
+        mapping_hidden=4, hidden=4, colour_hidden=4, head_layers=1,
+    )  # fmt: skip
+    rng = np.random.default_rng(9)
+    params = {k: rng.normal(size=s).astype(F32) for k, s in parameter_shapes(config).items()}
+    ckpt = AvatarCheckpoint(
+        config, "m", rng.random((6, 2)), np.array([[0, 1, 2], [3, 4, 5]]), np.zeros(4), params
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        write_checkpoint(Path(tmp) / "a.npz", ckpt)
+        return Path(tmp, "a.npz").read_bytes()
+
+
+def _cache_frame_bytes():
+    from archhead_addon.avatar.decode_cache import DiskCache
+    from archhead_addon.splat.frame import SplatFrame
+
+    rng = np.random.default_rng(11)
+    n = 30
+    frame = SplatFrame(
+        rng.normal(size=(n, 3)).astype(F32), rng.normal(-5, 1, (n, 3)).astype(F32),
+        np.tile(F32([1, 0, 0, 0]), (n, 1)), rng.normal(size=n).astype(F32),
+        rng.normal(size=(n, 16, 3)).astype(F32), 64,
+    )  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        DiskCache(tmp).put("k", frame)
+        return Path(tmp, "k.npz").read_bytes()
+
+
+def _train_config():
+    return {
+        "resolution": 64, "stage1_steps": 10, "stage2_steps": 5, "lods_per_step": 3,
+        "lr": {"features": 0.005, "mapping": 0.001, "decoder": 0.002}, "lr_final_ratio": 0.1,
+        "loss": {"parts": 20, "lpips": 0.05, "offset": 0.001, "scale": 0.5},
+        "avatar": {"s_max": 64, "s_min": 16, "levels": [32]}, "checkpoint_every": 5,
+    }  # fmt: skip
+
+
+def _train_state():
+    import torch
+
+    from archhead_addon.avatar.config import AvatarConfig
+    from archhead_addon.train.config import TrainConfig
+
+    torch.manual_seed(0)
+    params = {"features.4": torch.randn(2, 4, 4), "decoder.w": torch.randn(3, 5)}
+    opt = torch.optim.Adam([{"params": [p.requires_grad_()], "name": k} for k, p in params.items()])
+    sum(p.sum() for p in params.values()).backward()
+    opt.step()
+    return {
+        "format": "archhead-train-state",
+        "version": 1,
+        "step": 5,
+        "elapsed": 1.5,
+        "config": TrainConfig().to_json(),
+        "model_id": "m",
+        "avatar_config": AvatarConfig().to_json(),
+        "model": {k: v.detach() for k, v in params.items()},
+        "optimizer": opt.state_dict(),
+    }
+
+
+def _ply_bytes():
+    from archhead_addon.export.ply import write_ply
+
+    rng = np.random.default_rng(13)
+    n = 20
+    quats = rng.normal(size=(n, 4))
+    with tempfile.TemporaryDirectory() as tmp:
+        write_ply(
+            Path(tmp) / "a.ply", rng.normal(size=(n, 3)), rng.normal(-5, 1, (n, 3)),
+            quats / np.linalg.norm(quats, axis=1, keepdims=True), rng.normal(size=n),
+            rng.normal(size=(n, 16, 3)),
+        )  # fmt: skip
+        return Path(tmp, "a.ply").read_bytes()
+
+
+# ------------------------------------------------------------------------- serialisers
+
+
+def npz_bytes(arrays: dict) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def fast_pickle(obj) -> bytes:
+    """Protocol 2 without memo entries, so opcode fragments can be spliced in anywhere."""
+    import io
+
+    buf = io.BytesIO()
+    p = pickle._Pickler(buf, protocol=2)
+    p.fast = True
+    p.dump(obj)
+    return buf.getvalue()
+
+
+def torch_bytes(obj) -> bytes:
+    import io
+
+    import torch
+
+    def tensors(v):
+        if isinstance(v, np.ndarray) and v.dtype.kind in "biufc":
+            return torch.from_numpy(v)
+        if isinstance(v, dict):
+            return {k: tensors(x) for k, x in v.items()}
+        return v
+
+    buf = io.BytesIO()
+    torch.save(tensors(obj), buf)
+    return buf.getvalue()
+
+
+SENTINEL = "__FUZZ_SENTINEL__"
+_SENTINEL_OP = b"X" + struct.pack("<I", len(SENTINEL)) + SENTINEL.encode()
+
+
+def _text_op(text: str) -> bytes:
+    return b"X" + struct.pack("<I", len(text.encode())) + text.encode()
+
+
+def laughs(levels=40, base=0) -> bytes:
+    """A list holding one memoized list twice, `levels` times over: 2^levels leaves.
+    `base` offsets the memo indices (from a host pickle's own)."""
+    out = b"]r" + struct.pack("<I", base) + b"0"
+    for i in range(1, levels + 1):
+        get = b"j" + struct.pack("<I", base + i - 1)
+        out += (
+            b"(" + get + get + b"lr" + struct.pack("<I", base + i) + (b"0" if i < levels else b"")
+        )
+    return out
+
+
+def code_fragments(marker: Path) -> dict[str, bytes]:
+    """Opcode fragments that would create `marker` if the unpickler called what they name."""
+    m = str(marker)
+    call = _text_op(f"touch {m}") + b"\x85R"  # TUPLE1, REDUCE
+    return {
+        "os.system": b"cos\nsystem\n" + call,
+        "posix.system": b"cposix\nsystem\n" + call,
+        "subprocess.getoutput": b"csubprocess\ngetoutput\n" + call,
+        "builtins.exec": b"cbuiltins\nexec\n" + _text_op(f"open({m!r}, 'w')") + b"\x85R",
+        "builtins.open": b"cbuiltins\nopen\n" + _text_op(m) + _text_op("w") + b"\x86R",
+        "INST os.system": b"(" + _text_op(f"touch {m}") + b"ios\nsystem\n",
+        "numpy.load pickle": b"cnumpy\nload\n" + _text_op(m) + b"\x85R",
+        "copyreg os": b"ccopyreg\n_reconstructor\ncos\nsystem\ncbuiltins\nobject\nN\x87R",
+        "torch.load": b"ctorch\nload\n" + _text_op(m) + b"\x85R",
+    }
+
+
+def bomb_fragments() -> dict[str, bytes]:
+    state = fast_pickle(
+        {"_shape": (1 << 20, 1 << 20), "data": np.zeros(2), "indices": np.zeros(2, np.int64),
+         "indptr": np.zeros((1 << 20) + 1, np.int8)}
+    )[2:-1]  # fmt: skip
+    recon = b"cnumpy.core.multiarray\n_reconstruct\ncnumpy\nndarray\n" + (
+        b"J\x00\x00\x00\x40\x85" + _text_op("b") + b"\x87R"
+    )
+    return {
+        "memo bomb": laughs(),
+        "memo bomb, far memo indices": laughs(base=1 << 30),
+        "deep nesting": b"]" * 50_000 + b"a" * 49_999,
+        "sparse 2^40 dense": b"cscipy.sparse._csc\ncsc_matrix\n)\x81" + state + b"b",
+        "ndarray 2^30 reconstruct": recon,
+        "bytearray 2^40": b"cbuiltins\nbytearray\n\x8a\x06\x00\x00\x00\x00\x00\x01\x85R",
+    }
+
+
+# ------------------------------------------------------------------------- mutations
+
+
+def byte_mutations(data: bytes, rng) -> list[tuple[str, bytes]]:
+    out = [("empty file", b"")]
+    for i in range(12):
+        out.append((f"truncated {i}", data[: int(len(data) * rng.random())]))
+    for i in range(24):
+        b = bytearray(data)
+        for _ in range(1 + i % 3):
+            at = int(rng.integers(len(b)))
+            b[at] ^= 1 << int(rng.integers(8))
+        out.append((f"bit flip {i}", bytes(b)))
+    for i in range(8):
+        b = bytearray(data)
+        at = int(rng.integers(len(b)))
+        b[at : at + 16] = bytes(16)
+        out.append((f"zeroed run {i}", bytes(b)))
+    for i in range(4):
+        out.append((f"random bytes {i}", rng.bytes(int(rng.integers(1, 4096)))))
+    return out
+
+
+def value_mutations(d: dict, rng) -> list[tuple[str, dict]]:
+    """Each key dropped, NaN, Inf, huge, wrong dtype, wrong shape (leaves of nested dicts)."""
+    out = []
+    for key, value in d.items():
+        if isinstance(value, dict):
+            out += [
+                (f"{key}.{label}", {**d, key: sub}) for label, sub in value_mutations(value, rng)
+            ]
+            continue
+        out.append((f"{key} dropped", {k: v for k, v in d.items() if k != key}))
+        if not isinstance(value, np.ndarray) or value.dtype.kind not in "biuf":
+            out.append((f"{key} as array", {**d, key: np.zeros(3)}))
+            continue
+        a = value.astype(np.float64) if value.dtype.kind == "f" else value
+        for label, changed in (
+            ("NaN", np.where(np.ones_like(a, bool), np.nan, a) if a.size else a),
+            ("Inf", np.full_like(a, np.inf, dtype=np.float64)),
+            ("1e30", np.full_like(a, 1e30, dtype=np.float64)),
+            ("1e6", np.full_like(a, 1e6, dtype=np.float64)),
+            ("-1", np.full_like(a, -1)),
+            ("complex", a.astype(np.complex128) + 1j),
+            ("text", np.array(["x"] * max(a.size, 1))),
+            ("fractional", a.astype(np.float64) + 0.5),
+            ("empty", a.reshape(-1)[:0]),
+            ("extra axis", a[None, None]),
+            ("flattened", a.reshape(-1)),
+            ("bool", a.astype(bool)),
+        ):
+            out.append((f"{key} {label}", {**d, key: changed}))
+    return out
+
+
+def _patch_zip(data: bytes, what: str) -> bytes:
+    """One zip member given deflate64 (method 9), the encryption flag, or a huge size."""
+    b = bytearray(data)
+    local, central = b.find(b"PK\x03\x04"), b.find(b"PK\x01\x02")
+    if what == "deflate64":
+        struct.pack_into("<H", b, local + 8, 9)
+        struct.pack_into("<H", b, central + 10, 9)
+    elif what == "encrypted":
+        for at, off in ((local, 6), (central, 8)):
+            struct.pack_into("<H", b, at + off, struct.unpack_from("<H", b, at + off)[0] | 1)
+    else:  # a member claiming 4 GiB uncompressed
+        struct.pack_into("<I", b, local + 22, 0xFFFFFFF0)
+        struct.pack_into("<I", b, central + 24, 0xFFFFFFF0)
+    return bytes(b)
+
+
+def zip_mutations(data: bytes) -> list[tuple[str, bytes]]:
+    import io
+
+    out = [(f"zip {w}", _patch_zip(data, w)) for w in ("deflate64", "encrypted", "size bomb")]
+    buf = io.BytesIO(data)
+    with zipfile.ZipFile(buf) as z:
+        first = z.infolist()[0].filename
+        last = z.infolist()[-1].filename
+    for name in {first, last}:
+        dup = io.BytesIO(data)
+        with warnings.catch_warnings(), zipfile.ZipFile(dup, "a") as z:
+            warnings.simplefilter("ignore")
+            z.writestr(name, b"\x93NUMPY" + bytes(100))
+        out.append((f"duplicate member {name}", dup.getvalue()))
+    return out
+
+
+def npy_header_bomb(shape, descr="<f8") -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        buf, {"descr": descr, "fortran_order": False, "shape": shape}
+    )
+    return buf.getvalue() + bytes(64)
+
+
+def npz_mutations(arrays: dict, rng) -> list[tuple[str, bytes]]:
+    import io
+
+    out = [(label, npz_bytes(a)) for label, a in value_mutations(arrays, rng)]
+    out += zip_mutations(npz_bytes(arrays))
+    for key in list(arrays)[:3]:
+        for shape in ((30_000_000_000,), (1 << 20, 1 << 20, 3)):
+            buf = io.BytesIO()
+            with zipfile.ZipFile(buf, "w") as z:
+                for k, v in arrays.items():
+                    member = io.BytesIO()
+                    np.save(member, v)
+                    z.writestr(
+                        f"{k}.npy", npy_header_bomb(shape) if k == key else member.getvalue()
+                    )
+            out.append((f"{key} header claims {shape}", buf.getvalue()))
+    obj = io.BytesIO()
+    with zipfile.ZipFile(obj, "w") as z:
+        for k, v in arrays.items():
+            member = io.BytesIO()
+            np.save(member, np.array([v, None], dtype=object) if k == next(iter(arrays)) else v)
+            z.writestr(f"{k}.npy", member.getvalue())
+    out.append(("object-dtype member (pickle inside)", obj.getvalue()))
+    return out
+
+
+def pickle_mutations(d: dict, rng, marker: Path, splice) -> list[tuple[str, bytes]]:
+    """`splice(dict_with_sentinel) -> bytes with the fragment in place of the sentinel`."""
+    key = next(iter(d))
+    out = []
+    for label, fragment in {**bomb_fragments(), **code_fragments(marker)}.items():
+        out.append((label, splice({**d, key: SENTINEL}, fragment)))
+    return out
+
+
+def splice_pickle(d, fragment) -> bytes:
+    return fast_pickle(d).replace(_SENTINEL_OP, fragment)
+
+
+def splice_torch(d, fragment) -> bytes:
+    import io
+
+    data = torch_bytes(d)
+    src = zipfile.ZipFile(io.BytesIO(data))
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as z:
+        for info in src.infolist():
+            content = src.read(info)
+            if info.filename.endswith("/data.pkl"):
+                content = content.replace(_SENTINEL_OP, fragment)
+            z.writestr(info.filename, content)
+    return out.getvalue()
+
+
+def json_mutations(d: dict, rng) -> list[tuple[str, bytes]]:
+    out = []
+
+    def walk(node, path):
+        for key, value in list(node.items()) if isinstance(node, dict) else []:
+            for label, new in (
+                ("dropped", None), ("NaN", math.nan), ("Infinity", math.inf), ("1e300", 1e300),
+                ("-1", -1), ("0", 0), ("text", "x"), ("list", [1, 2]), ("true", True),
+                ("null", "null"), ("2^62", 1 << 62), ("fraction", 2.5),
+            ):  # fmt: skip
+                copy = json.loads(json.dumps(d))
+                target = copy
+                for p in path:
+                    target = target[p]
+                if new is None:
+                    del target[key]
+                else:
+                    target[key] = None if new == "null" else new
+                out.append((f"{'.'.join(map(str, path + [key]))} {label}", json.dumps(copy)))
+            if isinstance(value, dict):
+                walk(value, path + [key])
+
+    walk(d, [])
+    out.append(("deep nesting", "[" * 100_000 + "]" * 100_000))
+    out.append(("top-level list", "[1, 2]"))
+    out.append(("unknown key", json.dumps({**d, "zzz": 1})))
+    return [(label, text.encode()) for label, text in out]
+
+
+def ply_mutations(data: bytes, rng) -> list[tuple[str, bytes]]:
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header, body = data[:end].decode(), data[end:]
+    out = []
+    for label, old, new in (
+        ("count huge", "element vertex 20", "element vertex 99999999999"),
+        ("count negative", "element vertex 20", "element vertex -5"),
+        ("count text", "element vertex 20", "element vertex many"),
+        ("count missing", "element vertex 20", "element vertex"),
+        ("ascii format", "binary_little_endian", "ascii"),
+        ("big endian", "binary_little_endian", "binary_big_endian"),
+        ("list property", "property float x", "property list uchar float x"),
+        ("unknown type", "property float y", "property quad y"),
+        ("repeated property", "property float z", "property float x"),
+        ("no rot_0", "property float rot_0", "property float rot_9"),
+        ("no end_header", "end_header", "end_headr"),
+        ("double type", "property float opacity", "property double opacity"),
+        ("f_rest odd", "property float f_rest_44", "property float g_rest_44"),
+    ):
+        out.append((f"header {label}", header.replace(old, new).encode() + body))
+    floats = np.frombuffer(body, F32).copy()
+    for label, value in (("NaN", np.nan), ("Inf", np.inf), ("1e30", 1e30), ("-1e30", -1e30)):
+        for i in range(5):
+            f = floats.copy()
+            f[int(rng.integers(len(f)))] = value
+            out.append((f"body {label} {i}", header.encode() + f.tobytes()))
+    q = floats.reshape(20, -1).copy()
+    q[3, -4:] = 0
+    out.append(("zero quaternion", header.encode() + q.tobytes()))
+    return out
+
+
+# ------------------------------------------------------------------------- readers
+
+
+def _reader(name):
+    """The call a reader name stands for: path -> result (imports inside the worker)."""
+    from archhead_addon.sequences import read_sequence
+
+    if name in ("flame .npz", "flame .pkl"):
+        from archhead_addon.flame.model import load_model
+
+        return load_model
+    if name == "canonical npz":
+        return lambda p: read_sequence(p)
+    if name in ("vhap folder", "vhap tracked npz"):
+        return lambda p: read_sequence(p, "vhap", fps=25)
+    if name == "metrical .frame":
+        return lambda p: read_sequence(p, "metrical-tracker", fps=25)
+    if name == "flame-head-tracker npz":
+        return lambda p: read_sequence(p, "flame-head-tracker", fps=25)
+    if name.startswith("driving clip"):
+        return lambda p: read_sequence(p, "driving-clip")
+    if name == "avatar checkpoint":
+        from archhead_addon.avatar.checkpoint_format import read_checkpoint
+
+        return read_checkpoint
+    if name == "decode cache":
+        from archhead_addon.avatar.decode_cache import DiskCache
+        from archhead_addon.io.errors import InputError
+
+        def cached(path):
+            frame = DiskCache(Path(path).parent).get(Path(path).stem)
+            if frame is None:
+                raise InputError(path, None, "discarded by the cache (decoded again)")
+            return frame
+
+        return cached
+    if name == "training config":
+        from archhead_addon.train.config import TrainConfig
+
+        return TrainConfig.load
+    if name == "train_state":
+        from archhead_addon.train.loop import load_state
+
+        return load_state
+    if name == "PLY":
+        from archhead_addon.export.ply import read_ply, rows_to_gaussians
+
+        return lambda p: rows_to_gaussians(read_ply(p), p)
+    raise KeyError(name)
+
+
+def corpus(root: Path) -> list[tuple[str, str, Path]]:
+    """Write every reader's seed and malformed files under `root`: (reader, label, path).
+    The seed of each reader is first, labelled 'seed'."""
+    rng = np.random.default_rng(SEED)
+    marker = root / "CODE_RAN"
+    items = []
+
+    def add(reader, label, data, name):
+        folder = root / f"{len(items):05d}"
+        folder.mkdir()
+        path = folder / name
+        path.write_bytes(data)
+        items.append((reader, label, path))
+
+    def family(reader, name, seed, mutations):
+        add(reader, "seed", seed, name)
+        for round_ in range(2, 4):  # more byte damage for readers with few structured cases
+            if len(mutations) < 110:
+                more = byte_mutations(seed, rng)[1:]
+                mutations = mutations + [(f"{label} (round {round_})", d) for label, d in more]
+        for label, data in mutations:
+            add(reader, label, data, name)
+
+    flame = _flame_arrays()
+    family("flame .npz", "m.npz", npz_bytes(flame),
+           npz_mutations(flame, rng) + byte_mutations(npz_bytes(flame), rng))  # fmt: skip
+    family("flame .pkl", "m.pkl", fast_pickle(flame),
+           [(lbl, fast_pickle(d)) for lbl, d in value_mutations(flame, rng)]
+           + pickle_mutations(flame, rng, marker, splice_pickle)
+           + byte_mutations(fast_pickle(flame), rng))  # fmt: skip
+    seq = _sequence_arrays()
+    family("canonical npz", "s.npz", npz_bytes(seq),
+           npz_mutations(seq, rng) + byte_mutations(npz_bytes(seq), rng))  # fmt: skip
+    vt = _vhap_arrays(n=4)
+    vt.update(focal_length=np.array([1.5], F32), image_size=np.array([256, 256]))
+    family("vhap tracked npz", "tracked_flame_params.npz", npz_bytes(vt),
+           npz_mutations(vt, rng) + byte_mutations(npz_bytes(vt), rng))  # fmt: skip
+    _vhap_folders(root, items, rng)
+    frame = _metrical_frame()
+    family("metrical .frame", "00001.frame", torch_bytes(frame),
+           [(lbl, torch_bytes(d)) for lbl, d in value_mutations(frame, rng)]
+           + pickle_mutations(frame, rng, marker, splice_torch)
+           + zip_mutations(torch_bytes(frame))
+           + byte_mutations(torch_bytes(frame), rng))  # fmt: skip
+    fht = _fht_arrays()
+    family("flame-head-tracker npz", "3.npz", npz_bytes(fht),
+           npz_mutations(fht, rng) + byte_mutations(npz_bytes(fht), rng))  # fmt: skip
+    clip = _clip()
+    npz_clip = {**clip, "fps": np.float64(clip["fps"])}
+    family("driving clip npz", "c.npz", npz_bytes(npz_clip),
+           npz_mutations(npz_clip, rng) + byte_mutations(npz_bytes(npz_clip), rng))  # fmt: skip
+    family("driving clip pkl", "c.pkl", fast_pickle(clip),
+           [(lbl, fast_pickle(d)) for lbl, d in value_mutations(clip, rng)]
+           + pickle_mutations(clip, rng, marker, splice_pickle)
+           + byte_mutations(fast_pickle(clip), rng))  # fmt: skip
+    family("driving clip .pt", "c.pt", torch_bytes(clip),
+           [(lbl, torch_bytes(d)) for lbl, d in value_mutations(clip, rng)]
+           + pickle_mutations(clip, rng, marker, splice_torch)
+           + zip_mutations(torch_bytes(clip)) + byte_mutations(torch_bytes(clip), rng))  # fmt: skip
+    ckpt = _checkpoint_arrays()
+    with np.load(__import__("io").BytesIO(ckpt)) as z:
+        ckpt_arrays = {k: z[k] for k in z.files}
+    family("avatar checkpoint", "a.npz", ckpt,
+           npz_mutations(ckpt_arrays, rng) + byte_mutations(ckpt, rng)
+           + [("older file, no checksum",
+               npz_bytes({k: v for k, v in ckpt_arrays.items() if k != "checksum"}))])  # fmt: skip
+    cache = _cache_frame_bytes()
+    with np.load(__import__("io").BytesIO(cache)) as z:
+        cache_arrays = {k: z[k] for k in z.files}
+    family("decode cache", "0123abcd.npz", cache,
+           npz_mutations(cache_arrays, rng) + byte_mutations(cache, rng))  # fmt: skip
+    config = _train_config()
+    text = json.dumps(config).encode()
+    family(
+        "training config", "c.json", text, json_mutations(config, rng) + byte_mutations(text, rng)
+    )
+    state = _train_state()
+    state_np = _numpy_tree(state)
+    family("train_state", "train_state.pt", torch_bytes(state_np),
+           [(lbl, torch_bytes(d)) for lbl, d in value_mutations(state_np, rng)]
+           + pickle_mutations(state_np, rng, marker, splice_torch)
+           + zip_mutations(torch_bytes(state_np))
+           + byte_mutations(torch_bytes(state_np), rng))  # fmt: skip
+    ply = _ply_bytes()
+    family("PLY", "a.ply", ply, ply_mutations(ply, rng) + byte_mutations(ply, rng))
+    return items
+
+
+def _numpy_tree(value):
+    import torch
+
+    if isinstance(value, torch.Tensor):
+        return value.numpy()
+    if isinstance(value, dict):
+        return {k: _numpy_tree(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_numpy_tree(v) for v in value)
+    return value
+
+
+def _vhap_folders(root: Path, items: list, rng) -> None:
+    """VHAP export folders: each with one damaged file (transforms.json or a flame_param)."""
+    params = _vhap_arrays()
+    transforms = _vhap_transforms()
+    good_json = json.dumps(transforms).encode()
+    variants = [("seed", "transforms.json", good_json)]
+    variants += [(lbl, "transforms.json", d) for lbl, d in json_mutations(transforms, rng)[::3]]
+    variants += [(lbl, "transforms.json", d) for lbl, d in byte_mutations(good_json, rng)[::2]]
+    good = npz_bytes(params)
+    variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in npz_mutations(params, rng)[::2]]
+    variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in byte_mutations(good, rng)[::2]]
+    for label, target, data in variants:
+        folder = root / f"{len(items):05d}" / "vhap"
+        (folder / "flame_param").mkdir(parents=True)
+        (folder / "transforms.json").write_bytes(good_json)
+        for t in range(2):
+            (folder / f"flame_param/{t:05d}.npz").write_bytes(good)
+        (folder / target).write_bytes(data)
+        items.append(("vhap folder", f"{target}: {label}", folder))
+
+
+# ------------------------------------------------------------------------- running
+
+
+def _size(path: Path) -> int:
+    if path.is_dir():
+        return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    return path.stat().st_size
+
+
+def _nonfinite(value, depth=0) -> bool:
+    if depth > 6:
+        return False
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "fc" and not np.isfinite(value).all()
+    if isinstance(value, float):
+        return not math.isfinite(value)
+    if isinstance(value, dict):
+        return any(_nonfinite(v, depth + 1) for v in value.values())
+    if isinstance(value, list | tuple):
+        return any(_nonfinite(v, depth + 1) for v in value[:1000])
+    if is_dataclass(value):
+        return any(_nonfinite(getattr(value, f.name), depth + 1) for f in fields(value))
+    if hasattr(value, "numpy") and hasattr(value, "dtype"):  # torch tensors
+        return _nonfinite(value.numpy(), depth)
+    return False
+
+
+def _equal(a, b, depth=0) -> bool:
+    if depth > 6:
+        return True
+    if hasattr(a, "numpy") and hasattr(a, "dtype") and not isinstance(a, np.ndarray):
+        a, b = a.numpy(), b.numpy()
+    if isinstance(a, np.ndarray):
+        return isinstance(b, np.ndarray) and a.shape == b.shape and np.array_equal(a, b)
+    if isinstance(a, dict):
+        return (
+            isinstance(b, dict)
+            and a.keys() == b.keys()
+            and all(_equal(a[k], b[k], depth + 1) for k in a)
+        )
+    if isinstance(a, list | tuple):
+        return (
+            type(a) is type(b)
+            and len(a) == len(b)
+            and all(_equal(x, y, depth + 1) for x, y in zip(a, b, strict=True))
+        )
+    if is_dataclass(a):
+        return type(a) is type(b) and all(
+            _equal(getattr(a, f.name), getattr(b, f.name), depth + 1)
+            for f in fields(a)
+            if f.name not in ("source", "source_path")
+        )
+    return a == b or (a != a and b != b)
+
+
+def _read_one(reader: str, path: Path):
+    """(outcome kind, result, detail, peak bytes) of one read, in the worker."""
+    from archhead_addon.io.errors import InputError, InputWarning
+
+    read = _reader(reader)
+    tracemalloc.start()
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                result = read(path)
+                kind, detail = "ok", ""
+            except InputError as exc:
+                result, kind, detail = None, "error", str(exc)
+            except Exception as exc:  # noqa: BLE001 - any other exception is what we count
+                import traceback
+
+                at = traceback.extract_tb(exc.__traceback__)[-1]
+                where = f"{Path(at.filename).name}:{at.lineno}"
+                result, kind, detail = None, "raw", f"{type(exc).__name__} at {where}: {exc}"
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    warned = [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
+    if kind == "ok" and warned:
+        kind, detail = "warning", warned[0]
+    return kind, result, detail[:300], peak
+
+
+def _worker(conn):
+    seeds = {}
+    while True:
+        job = conn.recv()
+        if job is None:
+            return
+        reader, label, path = job
+        kind, result, detail, peak = _read_one(reader, Path(path))
+        if label == "seed":
+            seeds[reader] = result
+        nonfinite = kind in ("ok", "warning") and _nonfinite(result)
+        same = kind == "ok" and reader in seeds and _equal(seeds[reader], result)
+        conn.send((kind, detail, peak, nonfinite, same))
+
+
+class _Worker:
+    def __init__(self, ctx):
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_worker, args=(child,), daemon=True)
+        self.process.start()
+        self.job = None
+
+    def stop(self):
+        self.process.kill()
+        self.process.join()
+
+
+def run(items, root: Path, workers: int = 2, time_limit: float = TIME_LIMIT_S) -> list[dict]:
+    """Every item read by a pool of worker processes (one reader's items stay on one worker,
+    after its seed); a read over `time_limit` kills its worker (outcome 'hang')."""
+    ctx = multiprocessing.get_context("fork")
+    marker = root / "CODE_RAN"
+    sizes = {item[2]: _size(item[2]) for item in items}  # before readers delete any
+    by_reader: dict[str, list] = {}
+    for item in items:
+        by_reader.setdefault(item[0], []).append(item)
+    queues = [[] for _ in range(workers)]
+    for group in sorted(by_reader.values(), key=len, reverse=True):
+        min(queues, key=len).extend(group)
+    results = []
+    pool = [_Worker(ctx) for _ in range(workers)]
+    positions = [0] * workers
+    while any(positions[i] < len(queues[i]) or pool[i].job for i in range(workers)):
+        for i, w in enumerate(pool):
+            if w.job is None and positions[i] < len(queues[i]):
+                w.job, w.started = queues[i][positions[i]], time.monotonic()
+                positions[i] += 1
+                w.conn.send((w.job[0], w.job[1], str(w.job[2])))
+            if w.job is None:
+                continue
+            if w.conn.poll(0.002):
+                kind, detail, peak, nonfinite, same = w.conn.recv()
+                elapsed = time.monotonic() - w.started
+            elif time.monotonic() - w.started > time_limit:
+                w.stop()
+                kind, detail, peak, nonfinite, same = "hang", "", 0, False, False
+                elapsed = time_limit
+                job = w.job
+                pool[i] = w = _Worker(ctx)
+                w.job = job
+            else:
+                continue
+            reader, label, path = w.job
+            w.job = None
+            limit = ALLOC_FACTOR * sizes[path] + ALLOC_SLACK
+            outcome = kind
+            if kind in ("ok", "warning"):
+                outcome = "warning" if kind == "warning" else ("same" if same else "changed")
+            if nonfinite:
+                outcome = "nonfinite"
+            if peak > limit:
+                outcome, detail = "alloc", f"peak {peak} bytes, limit {limit}"
+            if marker.exists():
+                outcome, detail = "code", f"{marker} exists"
+                marker.unlink()
+            results.append(dict(reader=reader, label=label, outcome=outcome, detail=detail,
+                                seconds=elapsed, peak=peak))  # fmt: skip
+    for w in pool:
+        w.conn.send(None)
+        w.process.join(5)
+    return results
+
+
+def table(results: list[dict]) -> str:
+    """The markdown table of files tried per reader (seeds left out) and their outcomes."""
+    rows = {}
+    for r in results:
+        if r["label"] != "seed":
+            rows.setdefault(r["reader"], Counter())[r["outcome"]] += 1
+    head = "| reader | files | " + " | ".join(OUTCOMES) + " | slowest s |"
+    lines = [head, "|---" + "|---:" * (len(OUTCOMES) + 2) + "|"]
+    for reader, counts in rows.items():
+        slowest = max(r["seconds"] for r in results if r["reader"] == reader)
+        cells = " | ".join(str(counts[o]) for o in OUTCOMES)
+        lines.append(f"| {reader} | {sum(counts.values())} | {cells} | {slowest:.2f} |")
+    total = sum(rows.values(), Counter())
+    cells = " | ".join(str(total[o]) for o in OUTCOMES)
+    slowest = max(r["seconds"] for r in results)
+    lines.append(f"| all | {sum(total.values())} | {cells} | {slowest:.2f} |")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    """Generate the corpus in a temporary folder, run it, print the table (and, with -v,
+    every file that was not refused or read cleanly)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    start = time.monotonic()
+    with tempfile.TemporaryDirectory() as tmp:
+        items = corpus(Path(tmp))
+        results = run(items, Path(tmp))
+    print(table(results))
+    print(f"\n{len(results)} files in {time.monotonic() - start:.0f} s")
+    if "-v" in sys.argv:
+        for r in results:
+            if r["outcome"] not in ("error", "same"):
+                print(r["reader"], "|", r["label"], "|", r["outcome"], "|", r["detail"])
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    raise SystemExit(main())

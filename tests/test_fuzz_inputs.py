@@ -1,0 +1,41 @@
+"""Every reader against the fuzz corpus (tests/fuzz_corpus.py): over 100 malformed files
+each, no raw traceback, no read over the time limit, no allocation far above the input's
+size, no NaN or Inf in a result, no code run from a file; checkpoints and cache frames,
+which carry a checksum, never come back changed."""
+
+from collections import Counter
+
+import pytest
+from fuzz_corpus import corpus, run, table
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fuzz")
+    return run(corpus(root), root)
+
+
+def test_every_reader_meets_the_aims(results):
+    print("\n" + table(results))
+    files = Counter(r["reader"] for r in results if r["label"] != "seed")
+    assert len(files) == 15 and min(files.values()) >= 100, files
+    bad = [r for r in results if r["outcome"] in ("raw", "hang", "alloc", "nonfinite", "code")]
+    assert not bad, "\n".join(
+        f"{r['reader']} | {r['label']} | {r['outcome']} | {r['detail']}" for r in bad
+    )
+
+
+def test_seeds_read_cleanly(results):
+    seeds = {r["reader"]: r["outcome"] for r in results if r["label"] == "seed"}
+    assert set(seeds.values()) <= {"same"}, [
+        r for r in results if r["label"] == "seed" and r["outcome"] != "same"
+    ]
+
+
+def test_checksummed_files_never_come_back_changed(results):
+    changed = [
+        r["label"]
+        for r in results
+        if r["reader"] in ("avatar checkpoint", "decode cache") and r["outcome"] == "changed"
+    ]
+    assert not changed
