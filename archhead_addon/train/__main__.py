@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..io.errors import InputError, InputWarning
+from ..threads import limit_thread_environment
 from .config import DEFAULT_PRESET, HOLDOUTS, PRESETS, TrainConfig
 from .progress import DONE, ERROR, START, Progress
 from .progress import INTERRUPTED as INTERRUPTED_EVENT
@@ -109,10 +110,13 @@ def setup(args, progress: Progress) -> Trainer:
             "holds a training run: pass --resume to continue it, or choose another --out",
         )
     state = loop.load_state(state_path) if args.resume else None
-    config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
-    if args.holdout is not None and state is None:
-        config = replace(config, holdout=args.holdout)
-    if config.threads:
+    if state is None:
+        config = TrainConfig.load(args.config)
+        if args.holdout is not None:
+            config = replace(config, holdout=args.holdout)
+    else:
+        config = loop.state_config(state, state_path)
+    if config.threads:  # held to the cores (TrainConfig.read)
         torch.set_num_threads(config.threads)
     device = loop.resolve_device(config.device)
     model = load_model(args.flame)
@@ -121,7 +125,9 @@ def setup(args, progress: Progress) -> Trainer:
     )
     frames = loop.frames_on_device(dataset, device)
     if state is not None:
-        trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background, device)
+        trainer = loop.Trainer.resume(
+            state, args.out, frames, model, dataset.background, device, config
+        )
     else:
         trainer = loop.Trainer.create(
             config, frames, model, dataset.sequence.shape[0], args.out, dataset.background, device
@@ -170,6 +176,7 @@ def main(argv=None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", InputWarning)
             warnings.showwarning = lambda message, *rest: progress.message(f"warning: {message}")
+            limit_thread_environment()  # before torch loads OpenMP, too
             try:
                 trainer = setup(args, progress)
             except (InputError, ValueError) as exc:

@@ -151,9 +151,11 @@ class Trainer:
         return cls(config, frames, avatar.to(device), out_dir, background, device)
 
     @classmethod
-    def resume(cls, state: dict, out_dir, frames, model, background, device) -> Trainer:
-        """The run as its last checkpoint (`load_state`) left it. ValueError when `model` is
-        not the FLAME model the run was started with."""
+    def resume(
+        cls, state: dict, out_dir, frames, model, background, device, config=None
+    ) -> Trainer:
+        """The run as its last checkpoint (`load_state`) left it, with `config` (default: the
+        state's). ValueError when `model` is not the FLAME model the run was started with."""
         trained_on = state.get("model_id")
         if trained_on is not None and trained_on != model.model_id:
             raise ValueError(
@@ -174,7 +176,8 @@ class Trainer:
                 f"{RunFolder(out_dir).state}: model: the saved weights do not "
                 f"fit the FLAME model '{model.model_id}' ({exc})"
             ) from exc
-        trainer = cls(state_config(state), frames, avatar.to(device), out_dir, background, device)
+        config = config or state_config(state)
+        trainer = cls(config, frames, avatar.to(device), out_dir, background, device)
         trainer.optimizer.load_state_dict(state["optimizer"])
         trainer.step, trainer.elapsed = int(state["step"]), float(state["elapsed"])
         return trainer
@@ -328,8 +331,10 @@ def load_state(path) -> dict:
     return state
 
 
-def state_config(state: dict) -> TrainConfig:
-    return TrainConfig.from_dict(json.loads(state["config"]))
+def state_config(state: dict, where=None) -> TrainConfig:
+    """The config a state was saved with; `where` (its file) names it in errors and in the
+    warning when its thread count is more than this machine's cores."""
+    return TrainConfig.read(json.loads(state["config"]), where)
 
 
 def _to_cpu(value):
