@@ -17,11 +17,12 @@ import bpy
 import numpy as np
 
 from archhead_addon.avatar.checkpoint_format import read_checkpoint
-from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, file_digest, frame_key
+from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
 from archhead_addon.flame.model import FlameModel, load_model
+from archhead_addon.io.digest import file_digest
 from archhead_addon.splat.frame import SplatFrame
 
 from .preferences import get_preferences

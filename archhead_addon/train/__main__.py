@@ -2,9 +2,11 @@
 [--resume] [--progress-json] [--flame FILE] [--holdout last|interleaved]
 
 DIR holds frames/, optional masks/ and parts/, and tracking.npz (train/dataset.py). The run
-writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume) and OUT/config.json, every
-`checkpoint_every` steps and at the end. Ctrl-C (SIGINT) or SIGTERM finishes the current step,
-saves and exits with status 130; a second Ctrl-C stops at once. Exit status 2: bad input.
+writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume), OUT/config.json and
+OUT/checkpoint.json (which vouches for the other three), every `checkpoint_every` steps and at
+the end. Ctrl-C (SIGINT) or SIGTERM finishes the current step, saves and exits with status
+130; a second Ctrl-C stops at once. --resume first rewrites the files that a kill left behind
+the state. Exit status 0: trained, and the four files agree; 2: bad input; 1: they do not.
 
 torch loads only after the arguments are read, with OMP_WAIT_POLICY=PASSIVE unless set: on
 a busy machine OpenMP threads that spin while they wait for each other made small operations
@@ -22,6 +24,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..io.atomic import remove_stale_temporaries
 from ..io.errors import InputError, InputWarning
 from ..threads import limit_thread_environment
 from .config import DEFAULT_PRESET, HOLDOUTS, PRESETS, TrainConfig
@@ -109,6 +112,9 @@ def setup(args, progress: Progress) -> Trainer:
             None,
             "holds a training run: pass --resume to continue it, or choose another --out",
         )
+    removed = remove_stale_temporaries(args.out)  # the folder is this process's from here
+    if removed:
+        progress.message(f"removed {len(removed)} temporary files of killed writes")
     state = loop.load_state(state_path) if args.resume else None
     if state is None:
         config = TrainConfig.load(args.config)
@@ -128,6 +134,8 @@ def setup(args, progress: Progress) -> Trainer:
         trainer = loop.Trainer.resume(
             state, args.out, frames, model, dataset.background, device, config
         )
+        for problem in trainer.repair():
+            progress.message(f"repaired: {problem}; rewritten from {state_path.name}")
     else:
         trainer = loop.Trainer.create(
             config, frames, model, dataset.sequence.shape[0], args.out, dataset.background, device
@@ -152,8 +160,15 @@ def setup(args, progress: Progress) -> Trainer:
 def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
 
     finished = trainer.run(progress.step, progress.checkpoint, stop)
+    folder = RunFolder(trainer.out_dir)
+    problems = folder.problems(trainer.step)
+    if problems:  # never "done" without the files it promises
+        message = f"{folder.root}: the run's files do not agree: {'; '.join(problems)}"
+        progress.event(ERROR, message=message)
+        progress.message(f"error: {message}")
+        return 1
     kind = DONE if finished else INTERRUPTED_EVENT
-    avatar = RunFolder(trainer.out_dir).avatar
+    avatar = folder.avatar
     total = trainer.config.total_steps
     progress.event(
         kind,
