@@ -7,9 +7,14 @@ Runtime state lives in `state` alone. Scripts and benchmarks use `api`, the publ
 
 
 def register(addon_package: str) -> None:
-    """Preferences (under the add-on's module name), the avatar settings, the handlers."""
+    """Preferences (under the add-on's module name), the avatar settings, the handlers.
+    Thread variables above the cores are lowered first: the splat kernel's OpenMP and the
+    backends started from here read them."""
+    from archhead_addon.threads import limit_thread_environment
+
     from . import avatar_props, features, handlers, preferences
 
+    limit_thread_environment()
     preferences.register(addon_package)
     avatar_props.register()
     handlers.register()

@@ -1,6 +1,11 @@
 """What an avatar object needs at run time and cannot store in the .blend: the numpy runtime,
 the decode caches and which frames were decoded. One session per point object, made on first
-use from the object's settings (so a reopened .blend, a render and a farm job rebuild it)."""
+use from the object's settings (so a reopened .blend, a render and a farm job rebuild it).
+
+A session lives as long as its object: Blender tells Python nothing when an object is
+deleted or purged, so `prune_sessions` compares the sessions with bpy.data's objects after
+every depsgraph update and frame change (the handlers) and before a new session is made.
+A decoded frame set is hundreds of MB; fifteen deleted avatars held 2.5 GB before."""
 
 from __future__ import annotations
 
@@ -12,15 +17,16 @@ import bpy
 import numpy as np
 
 from archhead_addon.avatar.checkpoint_format import read_checkpoint
-from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, file_digest, frame_key
+from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
 from archhead_addon.flame.model import FlameModel, load_model
+from archhead_addon.io.digest import file_digest
 from archhead_addon.splat.frame import SplatFrame
 
 from .preferences import get_preferences
-from .state import STATE
+from .state import STATE, forget_object, object_uids
 
 PRECISION = "fp32"
 
@@ -123,6 +129,7 @@ def session(obj) -> AvatarSession:
     failed = STATE.failures.get(uid)
     if failed is not None and failed[0] == source:
         raise failed[1]
+    prune_sessions(force=True)
     try:
         current = STATE.sessions[uid] = AvatarSession(obj)
     except (OSError, ValueError, KeyError) as exc:  # InputError is a ValueError
@@ -136,6 +143,20 @@ def drop_session(obj) -> None:
     """Forget the object's session (its checkpoint file was replaced)."""
     STATE.sessions.pop(obj.session_uid, None)
     STATE.failures.pop(obj.session_uid, None)
+
+
+def prune_sessions(force: bool = False) -> None:
+    """Forget the sessions, errors and progress of objects that no longer exist. Without
+    `force`, only when bpy.data's object count changed since the last check: deleting or
+    purging an object changes it, and the count is cheap where reading every object's
+    session_uid after every update is not (the depsgraph handler calls this)."""
+    held = object_uids()
+    count = len(bpy.data.objects)
+    if not held or (count == STATE.objects_seen and not force):
+        return
+    STATE.objects_seen = count
+    for uid in held - {o.session_uid for o in bpy.data.objects}:
+        forget_object(uid)
 
 
 def forget_shown() -> None:

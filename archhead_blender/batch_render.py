@@ -20,6 +20,7 @@ from archhead_addon.io.atomic import write_bytes_atomic
 from archhead_addon.splat.blender_render import render_from_blender_camera
 from archhead_addon.splat.frame import SplatFrame
 from archhead_addon.synthetic.png import encode_png
+from archhead_addon.threads import thread_count
 
 from .avatar_props import is_avatar
 from .avatar_session import session
@@ -118,7 +119,7 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
         camera,
         np.array(scene.camera.evaluated_get(depsgraph).matrix_world),
         np.eye(4),
-        num_threads=scene.render.threads if scene.render.threads_mode == "FIXED" else 0,
+        num_threads=render_threads(scene),
     )
     path = out_dir / f"frame_{frame:04d}.png"
     write_png(path, raster.rgb, raster.alpha)
@@ -134,6 +135,14 @@ def read_image(path) -> np.ndarray:
         return np.array(image.pixels[:], np.float32).reshape(h, w, 4)[::-1]
     finally:
         bpy.data.images.remove(image)
+
+
+def render_threads(scene) -> int:
+    """The kernel's threads: the scene's fixed render threads (held to the cores, with a
+    warning: Blender allows 1024), else 0 (every core)."""
+    if scene.render.threads_mode != "FIXED":
+        return 0
+    return thread_count(scene.render.threads, f"scene '{scene.name}'", "render.threads")
 
 
 def write_png(path: Path, premultiplied_rgb: np.ndarray, alpha: np.ndarray) -> None:

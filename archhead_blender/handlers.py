@@ -23,7 +23,7 @@ from archhead_addon.io.errors import InputError
 from archhead_addon.splat.frame import SplatFrame
 
 from .avatar_props import is_avatar
-from .avatar_session import forget_shown, session
+from .avatar_session import forget_shown, prune_sessions, session
 from .point_instances import write_points
 from .scene_state import avatar_lod, camera_in_object, frame_codes
 from .state import STATE, reset
@@ -70,6 +70,7 @@ def refresh_avatar(obj, scene, depsgraph) -> bool:
 
 
 def refresh_scene(scene, depsgraph) -> None:
+    prune_sessions()  # an avatar deleted or purged since the last update frees its memory
     if STATE.suspended:
         return
     for obj in scene.objects:

@@ -15,6 +15,7 @@ from archhead_addon.camera import (
     intrinsics_to_blender,
     w2c_to_blender_matrix_world,
 )
+from archhead_addon.threads import thread_count
 
 # key, fill and rim area lights: position in FLAME space (metres), power (W), size (m)
 LIGHT_RIG = (
@@ -39,7 +40,7 @@ def reset_scene(resolution: int, samples: int, transparent: bool, threads: int =
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_denoising = samples > 4 and _cycles.with_openimagedenoise
     scene.render.threads_mode = "FIXED" if threads else "AUTO"
-    scene.render.threads = max(threads, 1)
+    scene.render.threads = thread_count(threads, "render settings", "threads") if threads else 1
     scene.render.resolution_x = scene.render.resolution_y = resolution
     scene.render.resolution_percentage = 100
     scene.render.film_transparent = transparent

@@ -1,6 +1,8 @@
 """All of the add-on's runtime state in one place: what lives only in this Blender process and
 cannot be stored in the .blend. `reset` is the one way to drop it; the handlers call it on
 file load and the add-on on unregister, so no registry outlives the file it describes.
+`forget_object` drops what belongs to one object: avatar_session.prune_sessions calls it for
+objects that were deleted or purged, so none outlives the object it describes either.
 
 Every other Blender-side module reads and writes these through `STATE`, never through
 module-level dictionaries of its own.
@@ -28,6 +30,8 @@ class RuntimeState:
     errors: dict[int, str] = field(default_factory=dict)
     # Point object session_uid -> {"done", "total", "cancel"} of a modal decode.
     decode_progress: dict[int, dict] = field(default_factory=dict)
+    # How many objects bpy.data held when the sessions were last checked against them.
+    objects_seen: int = -1
     # Nesting depth of bulk work that moves frames itself (handlers pause meanwhile).
     suspended: int = 0
     # The training run the panel shows (training.TrainingRun), if one is going.
@@ -53,3 +57,14 @@ def reset(keep_models: bool = True) -> None:
     fresh = RuntimeState(base_models=kept[0], head_models=kept[1], dialog_fields=kept[2])
     for name in RuntimeState.__dataclass_fields__:
         setattr(STATE, name, getattr(fresh, name))
+
+
+def object_uids() -> set[int]:
+    """The session_uids of the objects that have any per-object state."""
+    return set().union(STATE.sessions, STATE.failures, STATE.errors, STATE.decode_progress)
+
+
+def forget_object(uid: int) -> None:
+    """Drop everything held for one object (its runtime and decoded frames with its session)."""
+    for registry in (STATE.sessions, STATE.failures, STATE.errors, STATE.decode_progress):
+        registry.pop(uid, None)

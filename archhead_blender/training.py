@@ -38,10 +38,7 @@ POLL_S = 0.5  # how often the timer reads the backend's progress
 def training_settings(overrides: dict, base_config: str = "") -> dict:
     """The config the backend gets: the base config file (default: the command line's
     preset) with `overrides` on top, key by key."""
-    try:
-        settings = config_data(base_config or DEFAULT_PRESET)
-    except (OSError, ValueError) as exc:
-        raise InputError(base_config or DEFAULT_PRESET, None, str(exc)) from exc
+    settings = config_data(base_config or DEFAULT_PRESET)  # InputError names the file
     settings.update(overrides)
     return settings
 

@@ -55,7 +55,9 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        state = STATE.decode_progress[self.uid]
+        state = STATE.decode_progress.get(self.uid)
+        if state is None:  # the avatar was deleted (prune_sessions forgot its progress)
+            return self._finish(context, None, alive=False)
         if event.type == "ESC" or state["cancel"]:
             return self._finish(context, f"Cancelled after {state['done']} frames")
         if event.type != "TIMER":
@@ -75,7 +77,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
             return self._finish(context, f"Decoded {state['total']} frames")
         return {"RUNNING_MODAL"}
 
-    def _finish(self, context, message):
+    def _finish(self, context, message, alive: bool = True):
         wm = context.window_manager
         wm.event_timer_remove(self.timer)
         wm.progress_end()
@@ -84,7 +86,8 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         STATE.decode_progress.pop(self.uid, None)
         context.scene.frame_set(self.start)
         resume()
-        refresh_avatar(self.obj, context.scene, context.evaluated_depsgraph_get())
+        if alive:
+            refresh_avatar(self.obj, context.scene, context.evaluated_depsgraph_get())
         _redraw_sidebars(context)
         if message:
             self.report({"INFO"}, message)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic import save_npz_atomic
+from ..io.atomic import remove_stale_temporaries, save_npz_atomic
 from ..io.checksum import KEY, verify, with_checksum
 from ..io.errors import InputError
 from ..io.npz import read_npz
@@ -29,15 +29,6 @@ def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
     h = hashlib.sha1(f"{avatar_digest}/{codes_digest}".encode())
     h.update(np.float64(lod).tobytes())
     return h.hexdigest()[:24]
-
-
-def file_digest(path) -> str:
-    """sha1 of a file's contents (a checkpoint's identity across machines and renames)."""
-    h = hashlib.sha1()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 class MemoryCache:
@@ -73,11 +64,18 @@ class MemoryCache:
         self.nbytes = 0
 
 
+# Temporary files older than this in a cache folder are from killed writes: a frame's write
+# takes a second, and machines that share the folder may be writing theirs right now.
+STALE_TMP_S = 15 * 60
+
+
 class DiskCache:
-    """One `<key>.npz` per frame in a folder; unreadable files count as absent."""
+    """One `<key>.npz` per frame in a folder; unreadable files count as absent. Opening it
+    removes what killed writes left (io/atomic.py)."""
 
     def __init__(self, folder):
         self.folder = Path(folder)
+        remove_stale_temporaries(self.folder, older_than_s=STALE_TMP_S)
 
     def path(self, key: str) -> Path:
         return self.folder / f"{key}.npz"

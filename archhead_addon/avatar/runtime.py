@@ -16,6 +16,7 @@ saves memory, not time); `precision_error` reports its deviation from the fp32 p
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 
@@ -47,7 +48,13 @@ class AvatarRuntime:
         self.pe_centre = np.asarray(cfg.pe_centre, F32)
         self.freqs = (2.0 ** np.arange(cfg.pe_freqs)).astype(F32)
         self._nets = {p: _Network(ckpt.params, cfg, half=p == "fp16") for p in PRECISIONS}
-        self.level = functools.lru_cache(maxsize=max_cached)(self._build_level)
+        # Through a weak reference: a cached bound method is a cycle (self -> cache -> self)
+        # that only the cyclic collector frees, and a dropped runtime kept hundreds of MB
+        # until it ran (Blender's deleted avatars).
+        this = weakref.ref(self)
+        self.level = functools.lru_cache(maxsize=max_cached)(
+            lambda size, precision: this()._build_level(size, precision)
+        )
 
     @classmethod
     def load(cls, path, flame=None, max_cached: int = 4) -> AvatarRuntime:

@@ -1,12 +1,19 @@
-"""Atomic file writes: write a temporary file beside the target, fsync, then rename over it."""
+"""Atomic file writes: write a temporary file beside the target, fsync, then rename over it.
+
+A process killed mid-write leaves its temporary file (`.NAME.XXXXXXXX.tmp`) behind, never a
+torn target; whoever opens the folder next removes those (`remove_stale_temporaries`).
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
+
+TMP_SUFFIX = ".tmp"
 
 
 @contextlib.contextmanager
@@ -17,7 +24,7 @@ def atomic_path(target) -> Iterator[Path]:
     """
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=TMP_SUFFIX, dir=target.parent)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -53,3 +60,19 @@ def save_npz_atomic(target, **arrays) -> None:
 
     with atomic_path(target) as tmp, open(tmp, "wb") as f:
         np.savez(f, **arrays)
+
+
+def remove_stale_temporaries(folder, older_than_s: float = 0.0) -> list[Path]:
+    """Delete the temporary files that killed atomic writes left in `folder`, those older
+    than `older_than_s`: a folder that others write to at the same time (a cache shared by
+    render-farm machines) passes a margin that spares their writes in flight. Returns what
+    was removed; a missing folder has nothing to remove."""
+    folder, removed, now = Path(folder), [], time.time()
+    for path in folder.glob(f".*{TMP_SUFFIX}") if folder.is_dir() else ():
+        try:
+            if path.is_file() and now - path.stat().st_mtime >= older_than_s:
+                path.unlink()
+                removed.append(path)
+        except OSError:  # removed meanwhile by its writer, or not ours to delete
+            continue
+    return removed

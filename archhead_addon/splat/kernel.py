@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..threads import thread_count
 from . import build
 from .frame import SplatFrame, check_array, from_gsplat_order
 from .sh import degree_from_coeffs, sh_to_rgb_numpy
@@ -131,7 +132,7 @@ class RasterSettings:
     eps2d: float = 0.3
     antialiased: bool = False
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    num_threads: int = 0  # 0: OpenMP default
+    num_threads: int = 0  # 0: OMP_NUM_THREADS or every core; clamped to the cores (threads.py)
 
     def to_c(self) -> _Params:
         viewmat = check_array("viewmat", self.viewmat, (4, 4), np.float64)
@@ -145,7 +146,7 @@ class RasterSettings:
         p.eps2d = float(self.eps2d)
         p.antialiased = int(bool(self.antialiased))
         p.background[:] = background.tolist()
-        p.num_threads = int(self.num_threads)
+        p.num_threads = thread_count(self.num_threads, None, "num_threads")
         return p
 
 

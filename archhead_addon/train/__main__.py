@@ -2,9 +2,11 @@
 [--resume] [--progress-json] [--flame FILE] [--holdout last|interleaved]
 
 DIR holds frames/, optional masks/ and parts/, and tracking.npz (train/dataset.py). The run
-writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume) and OUT/config.json, every
-`checkpoint_every` steps and at the end. Ctrl-C (SIGINT) or SIGTERM finishes the current step,
-saves and exits with status 130; a second Ctrl-C stops at once. Exit status 2: bad input.
+writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume), OUT/config.json and
+OUT/checkpoint.json (which vouches for the other three), every `checkpoint_every` steps and at
+the end. Ctrl-C (SIGINT) or SIGTERM finishes the current step, saves and exits with status
+130; a second Ctrl-C stops at once. --resume first rewrites the files that a kill left behind
+the state. Exit status 0: trained, and the four files agree; 2: bad input; 1: they do not.
 
 torch loads only after the arguments are read, with OMP_WAIT_POLICY=PASSIVE unless set: on
 a busy machine OpenMP threads that spin while they wait for each other made small operations
@@ -22,7 +24,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..io.atomic import remove_stale_temporaries
 from ..io.errors import InputError, InputWarning
+from ..threads import limit_thread_environment
 from .config import DEFAULT_PRESET, HOLDOUTS, PRESETS, TrainConfig
 from .progress import DONE, ERROR, START, Progress
 from .progress import INTERRUPTED as INTERRUPTED_EVENT
@@ -108,11 +112,17 @@ def setup(args, progress: Progress) -> Trainer:
             None,
             "holds a training run: pass --resume to continue it, or choose another --out",
         )
+    removed = remove_stale_temporaries(args.out)  # the folder is this process's from here
+    if removed:
+        progress.message(f"removed {len(removed)} temporary files of killed writes")
     state = loop.load_state(state_path) if args.resume else None
-    config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
-    if args.holdout is not None and state is None:
-        config = replace(config, holdout=args.holdout)
-    if config.threads:
+    if state is None:
+        config = TrainConfig.load(args.config)
+        if args.holdout is not None:
+            config = replace(config, holdout=args.holdout)
+    else:
+        config = loop.state_config(state, state_path)
+    if config.threads:  # held to the cores (TrainConfig.read)
         torch.set_num_threads(config.threads)
     device = loop.resolve_device(config.device)
     model = load_model(args.flame)
@@ -121,7 +131,11 @@ def setup(args, progress: Progress) -> Trainer:
     )
     frames = loop.frames_on_device(dataset, device)
     if state is not None:
-        trainer = loop.Trainer.resume(state, args.out, frames, model, dataset.background, device)
+        trainer = loop.Trainer.resume(
+            state, args.out, frames, model, dataset.background, device, config
+        )
+        for problem in trainer.repair():
+            progress.message(f"repaired: {problem}; rewritten from {state_path.name}")
     else:
         trainer = loop.Trainer.create(
             config, frames, model, dataset.sequence.shape[0], args.out, dataset.background, device
@@ -146,8 +160,15 @@ def setup(args, progress: Progress) -> Trainer:
 def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
 
     finished = trainer.run(progress.step, progress.checkpoint, stop)
+    folder = RunFolder(trainer.out_dir)
+    problems = folder.problems(trainer.step)
+    if problems:  # never "done" without the files it promises
+        message = f"{folder.root}: the run's files do not agree: {'; '.join(problems)}"
+        progress.event(ERROR, message=message)
+        progress.message(f"error: {message}")
+        return 1
     kind = DONE if finished else INTERRUPTED_EVENT
-    avatar = RunFolder(trainer.out_dir).avatar
+    avatar = folder.avatar
     total = trainer.config.total_steps
     progress.event(
         kind,
@@ -170,6 +191,7 @@ def main(argv=None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", InputWarning)
             warnings.showwarning = lambda message, *rest: progress.message(f"warning: {message}")
+            limit_thread_environment()  # before torch loads OpenMP, too
             try:
                 trainer = setup(args, progress)
             except (InputError, ValueError) as exc:

@@ -12,12 +12,15 @@ reads it before torch loads.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+from numbers import Real
 from pathlib import Path
 
 from ..avatar.config import AvatarConfig
 from ..io.errors import InputError
 from ..io.json_input import load_json
+from ..threads import thread_count
 from .config_ranges import check_ranges
 
 HOLDOUTS = ("last", "interleaved")  # which frames test (dataset.split_indices)
@@ -27,6 +30,16 @@ PRESETS = ("cpu", "cpu_short", "gpu_paper", "demo")
 # Where every training starts unless told otherwise: the command line and Blender's Train
 # operator alike (the dataclass defaults below are not a preset of their own).
 DEFAULT_PRESET = "cpu"
+WHOLE_NUMBERS = (
+    "resolution",
+    "stage1_steps",
+    "stage2_steps",
+    "lods_per_step",
+    "lpips_every",
+    "checkpoint_every",
+    "seed",
+    "threads",
+)
 
 
 @dataclass(frozen=True)
@@ -67,19 +80,48 @@ class TrainConfig:
     holdout: str = "last"  # the test frames (HOLDOUTS): the last 10 %, or every tenth
 
     def __post_init__(self):
-        if self.resolution < 32:
-            raise ValueError(f"resolution must be >= 32 px (ST-LPIPS), got {self.resolution}")
-        if self.stage1_steps < 0 or self.stage2_steps < 0 or self.total_steps == 0:
-            raise ValueError("step counts must be >= 0 and not both 0")
-        if min(self.lods_per_step, self.checkpoint_every, self.lpips_every) < 1:
-            raise ValueError("lods_per_step, checkpoint_every and lpips_every must be >= 1")
-        if not 0 < self.lr_final_ratio <= 1:
-            raise ValueError(f"lr_final_ratio must be in (0, 1], got {self.lr_final_ratio}")
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
-        if self.holdout not in HOLDOUTS:
-            raise ValueError(f"holdout must be one of {HOLDOUTS}, got {self.holdout!r}")
-        self.avatar_config(n_expr=1)  # reject unknown or invalid avatar fields now
+        """Bad values raise InputError naming the key (`load` adds the file). JSON allows
+        NaN and Infinity: a NaN step count once made a run that trained nothing exit 0."""
+        for key in WHOLE_NUMBERS:
+            value = getattr(self, key)
+            if not _is_whole(value):
+                raise InputError(None, key, f"must be a finite whole number, got {value!r}")
+            object.__setattr__(self, key, int(value))  # 1e3 in JSON reads as 1000.0
+        for key in ("stage1_steps", "stage2_steps", "seed", "threads"):
+            _require(getattr(self, key) >= 0, key, f"must be >= 0, got {getattr(self, key)}")
+        _require(self.total_steps > 0, "stage1_steps", "stage1_steps + stage2_steps must be > 0")
+        _require(
+            self.resolution >= 32,
+            "resolution",
+            f"must be >= 32 px (ST-LPIPS), got {self.resolution}",
+        )
+        for key in ("lods_per_step", "checkpoint_every", "lpips_every"):
+            _require(getattr(self, key) >= 1, key, f"must be >= 1, got {getattr(self, key)}")
+        for group in ("lr", "loss"):
+            for f in fields(getattr(self, group)):
+                value = getattr(getattr(self, group), f.name)
+                ok = _is_number(value) and value >= 0
+                _require(ok, f"{group}.{f.name}", f"must be a finite number >= 0, got {value!r}")
+        ratio = self.lr_final_ratio
+        _require(
+            _is_number(ratio) and 0 < ratio <= 1,
+            "lr_final_ratio",
+            f"must be in (0, 1], got {ratio!r}",
+        )
+        _require(
+            self.device in ("auto", "cpu", "cuda"),
+            "device",
+            f"must be 'auto', 'cpu' or 'cuda', got {self.device!r}",
+        )
+        _require(
+            self.holdout in HOLDOUTS,
+            "holdout",
+            f"must be one of {HOLDOUTS}, got {self.holdout!r}",
+        )
+        try:
+            self.avatar_config(n_expr=1)  # reject unknown or invalid avatar fields now
+        except ValueError as exc:
+            raise InputError(None, "avatar", str(exc)) from exc
 
     @property
     def total_steps(self) -> int:
@@ -112,14 +154,27 @@ class TrainConfig:
 
     @classmethod
     def load(cls, path) -> TrainConfig:
-        """A config file, or a preset name (PRESETS). InputError names the file (and key)."""
+        """A config file, or a preset name (PRESETS), as `read` checks it."""
         path = config_path(path)
-        data = load_json(path)
+        return cls.read(load_json(path), path)
+
+    @classmethod
+    def read(cls, data: dict, where) -> TrainConfig:
+        """`from_dict` with errors naming `where` (the file) and the key; a thread count
+        above the machine's cores is lowered to them with a warning."""
         try:
-            return cls.from_dict(data)
+            config = cls.from_dict(data)
+        except InputError as exc:
+            raise InputError(where, exc.key, exc.problem) from exc
         except ValueError as exc:
-            key, problem = getattr(exc, "key", None), getattr(exc, "problem", str(exc))
-            raise InputError(path, key, problem) from exc
+            raise InputError(where, None, str(exc)) from exc
+        return config.with_usable_threads(where)
+
+    def with_usable_threads(self, where) -> TrainConfig:
+        """This config with `threads` at most the machine's cores (0 stays: the default)."""
+        if not self.threads:
+            return self
+        return replace(self, threads=thread_count(self.threads, where, "threads"))
 
 
 def config_path(path_or_preset) -> Path:
@@ -130,9 +185,10 @@ def config_path(path_or_preset) -> Path:
 
 def config_data(path_or_preset=DEFAULT_PRESET) -> dict:
     """A config file's (or preset's) JSON object as written, checked by TrainConfig: the
-    starting point that callers override key by key."""
-    data = json.loads(config_path(path_or_preset).read_text())
-    TrainConfig.from_dict(data)
+    starting point that callers override key by key. InputError names the file."""
+    path = config_path(path_or_preset)
+    data = load_json(path)
+    TrainConfig.read(data, path)
     return data
 
 
@@ -147,3 +203,16 @@ def _nested(kind, data, name: str):
         return kind(**data)
     except TypeError as exc:
         raise ValueError(f"'{name}': {exc}") from exc
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _is_whole(value) -> bool:
+    return _is_number(value) and value == int(value)
+
+
+def _require(ok: bool, key: str, problem: str) -> None:
+    if not ok:
+        raise InputError(None, key, problem)

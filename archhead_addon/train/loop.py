@@ -22,8 +22,11 @@ Files in the output folder, each replaced atomically:
   train_state.pt   step, elapsed time, config, model and optimizer state; torch.save of
                    tensors and plain types only, read back with torch.load(weights_only=True)
   config.json      the training config of the run
-A checkpoint writes train_state.pt first and avatar.npz second. Resume reads train_state.pt
-alone, so a kill between the two writes loses nothing: the state is whole either way.
+  checkpoint.json  the step and the digests of the three above (run_folder.py)
+A checkpoint writes them in that order: train_state.pt, config.json, avatar.npz, then the
+manifest. Resume reads train_state.pt alone, so a kill between two writes loses nothing, and
+`repair` rewrites the files that lag it (a kill during the last checkpoint once left a
+finished run naming the previous checkpoint's avatar).
 """
 
 from __future__ import annotations
@@ -150,9 +153,11 @@ class Trainer:
         return cls(config, frames, avatar.to(device), out_dir, background, device)
 
     @classmethod
-    def resume(cls, state: dict, out_dir, frames, model, background, device) -> Trainer:
-        """The run as its last checkpoint (`load_state`) left it. ValueError when `model` is
-        not the FLAME model the run was started with."""
+    def resume(
+        cls, state: dict, out_dir, frames, model, background, device, config=None
+    ) -> Trainer:
+        """The run as its last checkpoint (`load_state`) left it, with `config` (default: the
+        state's). ValueError when `model` is not the FLAME model the run was started with."""
         trained_on = state.get("model_id")
         if trained_on is not None and trained_on != model.model_id:
             raise ValueError(
@@ -173,7 +178,8 @@ class Trainer:
                 f"{RunFolder(out_dir).state}: model: the saved weights do not "
                 f"fit the FLAME model '{model.model_id}' ({exc})"
             ) from exc
-        trainer = cls(state_config(state), frames, avatar.to(device), out_dir, background, device)
+        config = config or state_config(state)
+        trainer = cls(config, frames, avatar.to(device), out_dir, background, device)
         trainer.optimizer.load_state_dict(state["optimizer"])
         trainer.step, trainer.elapsed = int(state["step"]), float(state["elapsed"])
         return trainer
@@ -269,7 +275,7 @@ class Trainer:
     # -- files ----------------------------------------------------------------------------
 
     def save(self) -> Path:
-        """Write the training state, then the avatar checkpoint; returns the avatar's path."""
+        """Write a checkpoint in the module docstring's order; returns the avatar's path."""
         state = {
             "format": STATE_FORMAT,
             "version": STATE_VERSION,
@@ -281,13 +287,27 @@ class Trainer:
             "model": {k: v.detach().cpu() for k, v in self.avatar.state_dict().items()},
             "optimizer": _to_cpu(self.optimizer.state_dict()),
         }
-        with atomic_path(RunFolder(self.out_dir).state) as tmp:
+        folder = RunFolder(self.out_dir)
+        with atomic_path(folder.state) as tmp:
             torch.save(state, tmp)
-        save_avatar(RunFolder(self.out_dir).avatar, self.avatar)
-        return RunFolder(self.out_dir).avatar
+        self.write_config()
+        save_avatar(folder.avatar, self.avatar)
+        folder.write_manifest(self.step, self.config.total_steps)
+        return folder.avatar
 
     def write_config(self) -> None:
-        write_bytes_atomic(RunFolder(self.out_dir).config, self.config.to_json().encode() + b"\n")
+        """config.json, unless it already says the same."""
+        path, text = RunFolder(self.out_dir).config, self.config.to_json().encode() + b"\n"
+        if not (path.is_file() and path.read_bytes() == text):
+            write_bytes_atomic(path, text)
+
+    def repair(self) -> list[str]:
+        """Rewrite the checkpoint from this (resumed) state where the folder's files do not
+        agree with it; returns what was wrong (nothing: nothing written)."""
+        found = RunFolder(self.out_dir).problems(self.step)
+        if found:
+            self.save()
+        return found
 
     def run(
         self,
@@ -297,7 +317,8 @@ class Trainer:
     ) -> bool:
         """Train to the end (True) or until should_stop() after a step (False, saved)."""
         self.out_dir.mkdir(parents=True, exist_ok=True)
-        self.write_config()
+        if self.step == 0:
+            self.write_config()  # a resumed run's is in its checkpoint (`repair`)
         every = self.config.checkpoint_every
         while self.step < self.config.total_steps:
             report = self.train_step()
@@ -319,8 +340,10 @@ def load_state(path) -> dict:
     return state
 
 
-def state_config(state: dict) -> TrainConfig:
-    return TrainConfig.from_dict(json.loads(state["config"]))
+def state_config(state: dict, where=None) -> TrainConfig:
+    """The config a state was saved with; `where` (its file) names it in errors and in the
+    warning when its thread count is more than this machine's cores."""
+    return TrainConfig.read(json.loads(state["config"]), where)
 
 
 def _as_tensors(value):

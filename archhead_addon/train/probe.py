@@ -126,17 +126,18 @@ def make_trainer(args):
 
     from ..flame.model import load_model
     from ..io.errors import InputError
+    from ..threads import thread_count
     from . import loop
     from .dataset import FrameDataset
     from .run_folder import RunFolder
 
     if args.threads:
-        torch.set_num_threads(args.threads)
+        torch.set_num_threads(thread_count(args.threads, "command line", "--threads"))
     state_path = RunFolder(args.run).state
     if not state_path.is_file():
         raise InputError(args.run, None, f"no {state_path.name}: not a training run")
     state = loop.load_state(state_path)
-    config = loop.state_config(state)
+    config = loop.state_config(state, state_path)
     if args.no_regularisers:
         config = replace(config, loss=replace(config.loss, offset=0.0, scale=0.0))
     state["config"] = config.to_json()

@@ -1,0 +1,70 @@
+"""Thread counts, held to the cores this process may run on.
+
+More threads than cores is never faster, and far more is fatal: 1e6 splat-kernel threads
+segfaulted, large OpenMP teams under a memory cap made the runtime exit the whole process
+(Blender with it), and `"threads": 1000000` in a training config hung. Every count read from a
+file, a setting, an argument or the environment goes through `thread_count` (or, for the
+variables the OpenMP and BLAS runtimes read when they load, `limit_thread_environment`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from numbers import Real
+
+from .io.errors import InputError, warn_input
+
+# Read by OpenMP (torch, the splat kernel) and by numpy's BLAS when they load.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def machine_cores() -> int:
+    """The cores this process may use (its affinity mask where the system has one)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):  # macOS, Windows
+        return max(os.cpu_count() or 1, 1)
+
+
+def default_threads() -> int:
+    """What a count of 0 means: OMP_NUM_THREADS when it is set lower, else every core."""
+    cores = machine_cores()
+    asked = _leading_count(os.environ.get("OMP_NUM_THREADS", ""))
+    return min(asked, cores) if asked else cores
+
+
+def thread_count(value, where=None, key: str = "threads") -> int:
+    """`value` as a thread count in 1 .. machine_cores(): 0 or less is the default
+    (`default_threads`); more than the cores is clamped to them with an InputWarning that
+    names `where` and `key`. A value that is not a whole number is an InputError."""
+    whole = isinstance(value, Real) and not isinstance(value, bool)  # numpy's too
+    if not (whole and math.isfinite(value) and value == int(value)):
+        raise InputError(where, key, f"a thread count must be a whole number, got {value!r}")
+    value = int(value)
+    if value <= 0:
+        return default_threads()
+    cores = machine_cores()
+    return _too_many(where, key, value, cores) if value > cores else value
+
+
+def limit_thread_environment(environ=None) -> None:
+    """Lower THREAD_VARIABLES above the core count to it, with a warning: call before torch
+    or the splat kernel loads OpenMP (they read them once), and before starting children."""
+    environ = os.environ if environ is None else environ
+    cores = machine_cores()
+    for name in THREAD_VARIABLES:
+        asked = _leading_count(environ.get(name, ""))
+        if asked and asked > cores:
+            environ[name] = str(_too_many("environment", name, asked, cores))
+
+
+def _too_many(where, key, asked: int, cores: int) -> int:
+    warn_input(where, key, f"{asked} threads, this machine has {cores} cores: using {cores}")
+    return cores
+
+
+def _leading_count(text: str) -> int | None:
+    """The first number of a thread variable ("8", or OpenMP's nested "8,2"), if any."""
+    first = text.split(",")[0].strip()
+    return int(first) if first.isdigit() and int(first) > 0 else None
