@@ -9,8 +9,9 @@
 The env lives in `$ARCHHEAD_BLENDER_ENV`, else `$ARCHHEAD_CACHE/blender-env/<suite>`, else
 `~/.cache/archhead/blender-env/<suite>`. Building needs root and Debian's archive:
 `debootstrap --variant=minbase trixie` (debootstrap is installed on the host with apt-get
-when missing), then, inside, `apt-get install blender python3-numpy xvfb xauth` (Debian's
-blender lacks numpy). Trixie has Blender 4.3.2, the manifest's 4.2 LTS end. A stamp file
+when missing), then, inside, `apt-get install blender python3-numpy xvfb xauth libegl1
+libegl-mesa0` (Debian's blender lacks numpy; EEVEE in `blender -b` needs EGL). Trixie has
+Blender 4.3.2, the manifest's 4.2 LTS end. A stamp file
 holding the recipe marks a finished env; a different recipe or a half-built folder is built
 anew.
 
@@ -42,8 +43,9 @@ from pathlib import Path
 
 SUITE = "trixie"
 MIRROR = "http://deb.debian.org/debian"
-PACKAGES = ("blender", "python3-numpy", "xvfb", "xauth")
-RECIPE = {"suite": SUITE, "variant": "minbase", "packages": list(PACKAGES), "version": 1}
+# libegl1 + libegl-mesa0: `blender -b` renders EEVEE through a headless EGL context
+PACKAGES = ("blender", "python3-numpy", "xvfb", "xauth", "libegl1", "libegl-mesa0")
+RECIPE = {"suite": SUITE, "variant": "minbase", "packages": list(PACKAGES), "version": 2}
 STAMP = "archhead-blender-env.json"
 
 
