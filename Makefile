@@ -1,11 +1,14 @@
 # The README's commands: `make setup` installs everything into .venv, `make test` lints and
 # runs the whole suite, `make demo` runs the demo (scripts/demo.py), `make extension` builds
-# the installable zip for this platform into dist/ (scripts/build_extension.py).
+# the installable zip for this platform into dist/ (scripts/build_extension.py), `make test-ui`
+# runs the UI suite in a real Blender binary (tests/ui; needs root and Debian's archive the
+# first time, to build the binary's env: scripts/blender_env.py), `make ui-screenshots` copies
+# its screenshots into docs/.
 PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup test demo extension format
+.PHONY: setup test test-ui ui-screenshots demo extension format
 setup:
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip
@@ -18,6 +21,12 @@ test:
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/python -m pytest
+
+test-ui:
+	$(BIN)/python -m pytest --ui -m ui tests/ui
+
+ui-screenshots: test-ui
+	$(BIN)/python tests/ui/docs_screenshots.py
 
 demo:
 	$(BIN)/python -m archhead_addon demo --out out/demo

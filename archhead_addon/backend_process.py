@@ -150,6 +150,24 @@ class BackendRun:
         elif waited > self.grace:
             self.process.terminate()
 
+    def stop(self, timeout: float | None = None) -> int | None:
+        """Cancel and wait for the exit (up to `timeout`, default the grace period: the
+        backend finishes its step and saves), then terminate and close. For when nobody
+        will poll any more: Blender quitting, the add-on disabled, another file loaded."""
+        self.cancel()
+        try:
+            self.process.wait(self.grace if timeout is None else timeout)
+        except subprocess.TimeoutExpired:
+            self.process.terminate()
+            try:
+                self.process.wait(5.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if not self._log.closed:
+            self.close()
+        return self.process.returncode
+
     def close(self) -> None:
         """After the exit: drain the readers, note the exit code in the log, close it."""
         for reader in self._readers:

@@ -27,6 +27,7 @@ from archhead_addon.train.run_folder import RunFolder
 
 from .avatar_session import session
 from .batch_render import read_image, render_frames, scene_avatars
+from .compat import eevee_engine
 from .decoding import decode_frames
 from .lod_driver import drive_lod_by_distance
 from .point_instances import write_points
@@ -43,6 +44,7 @@ __all__ = [
     "decode_frames",
     "demo_sequence",
     "drive_lod_by_distance",
+    "eevee_engine",
     "enable_addon",
     "frame_codes",
     "load_model",

@@ -25,6 +25,7 @@ from archhead_addon.rig import (
     rig_animation,
 )
 
+from .compat import ensure_node_tree
 from .keyframes import ActionWriter
 
 BONE_LENGTH = 0.02  # metres; only the display length, rest frames stay axis-aligned
@@ -172,8 +173,7 @@ def _albedo_material(albedo, name, created):
     image.pixels.foreach_set(rgba.ravel())
     image.pack()
     mat = created.add(bpy.data.materials.new(f"{name}_skin"))
-    mat.use_nodes = True
-    nodes = mat.node_tree.nodes
+    nodes = ensure_node_tree(mat).nodes
     bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
     tex = nodes.new("ShaderNodeTexImage")
     tex.image = image
@@ -275,12 +275,16 @@ def _build_camera(scene, seq, frames, name, created):
             data_writer.write(attr, frames, np.array([getattr(p, attr) for p in params]))
     worlds = np.stack([w2c_to_blender_matrix_world(w) for w in seq.w2c])
     cam.rotation_mode = "QUATERNION"
-    writer = ActionWriter(cam, f"{name}_camera_action")
-    created.add(writer.action)
-    writer.write_vector("location", frames, worlds[:, :3, 3])
-    quats = np.array([Matrix(m[:3, :3].tolist()).to_quaternion()[:] for m in worlds])
-    writer.write_vector("rotation_quaternion", frames, continuous_quaternions(quats))
+    # A fixed camera (most trackers': the head moves) gets no keys, so it can be moved;
+    # a moving one is keyed at every tracked frame.
+    if not np.allclose(worlds, worlds[:1], rtol=0.0, atol=1e-9):
+        writer = ActionWriter(cam, f"{name}_camera_action")
+        created.add(writer.action)
+        writer.write_vector("location", frames, worlds[:, :3, 3])
+        quats = np.array([Matrix(m[:3, :3].tolist()).to_quaternion()[:] for m in worlds])
+        writer.write_vector("rotation_quaternion", frames, continuous_quaternions(quats))
     cam.matrix_world = Matrix(worlds[0].tolist())
+    cam["archhead_head"] = name  # the N-panel shows the head while its camera is selected
     scene.camera = cam
 
 

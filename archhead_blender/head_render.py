@@ -17,6 +17,8 @@ from archhead_addon.camera import (
 )
 from archhead_addon.threads import thread_count
 
+from .compat import ensure_node_tree
+
 # key, fill and rim area lights: position in FLAME space (metres), power (W), size (m)
 LIGHT_RIG = (
     ("key", (0.55, 0.45, 0.7), 20.0, 0.5),
@@ -46,8 +48,9 @@ def reset_scene(resolution: int, samples: int, transparent: bool, threads: int =
     scene.render.film_transparent = transparent
     scene.view_settings.view_transform = "Standard"
     world = bpy.data.worlds.new("world")
-    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.16, 0.17, 0.19, 1)
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.35
+    background = ensure_node_tree(world).nodes["Background"]
+    background.inputs["Color"].default_value = (0.16, 0.17, 0.19, 1)
+    background.inputs["Strength"].default_value = 0.35
     scene.world = world
     return scene
 
@@ -65,7 +68,7 @@ def _material(name: str, image, roughness: tuple, subsurface: float):
     """Principled BSDF with the albedo as base colour; roughness runs from roughness[0] on
     the darkest texels (hair, brows) to roughness[1] on the brightest."""
     mat = bpy.data.materials.new(name)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes, links = ensure_node_tree(mat).nodes, mat.node_tree.links
     bsdf = nodes["Principled BSDF"]
     bsdf.inputs["Specular IOR Level"].default_value = 0.4
     bsdf.inputs["Subsurface Weight"].default_value = subsurface

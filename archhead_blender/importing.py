@@ -24,4 +24,18 @@ def import_sequence(context, path, options: dict | None = None, model_path: str 
     )
     info = {"sequence": str(path), "format": seq.format, "frames": len(seq), "source_fps": seq.fps}
     options.setdefault("name", Path(path).stem or "ArchHead")
-    return build_head(context, model, seq, ImportOptions(**options), info)
+    rig = build_head(context, model, seq, ImportOptions(**options), info)
+    select_imported(context, rig)
+    return rig
+
+
+def select_imported(context, rig) -> None:
+    """Only the new rig and head selected, the rig active (as Blender's importers leave it)."""
+    view_layer = context.view_layer
+    for obj in view_layer.objects:
+        if obj.select_get(view_layer=view_layer):
+            obj.select_set(False, view_layer=view_layer)
+    for obj in (rig, *rig.children):
+        if obj.name in view_layer.objects and obj.type in {"ARMATURE", "MESH"}:
+            obj.select_set(True, view_layer=view_layer)
+    view_layer.objects.active = rig

@@ -19,6 +19,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from .compat import ensure_node_tree
+
 SIGMA_EXTENT = 3.0  # instance radius in standard deviations (3DGS' own 3-sigma extent)
 ICO_SUBDIVISIONS = 2  # 80 faces: the falloff, not the facets, shapes each Gaussian
 NODE_GROUP = "ArchHead Gaussians"
@@ -131,8 +133,7 @@ def gaussian_material():
     if mat is not None:
         return mat
     mat = bpy.data.materials.new(MATERIAL)
-    if mat.node_tree is None:  # before Blender 5.0 a new material has no node tree
-        mat.use_nodes = True
+    ensure_node_tree(mat)
     mat.surface_render_method = "DITHERED"  # EEVEE: order-independent, converges with samples
     mat.use_transparent_shadow = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links

@@ -44,14 +44,18 @@ STATE = RuntimeState()
 
 
 def reset(keep_models: bool = True) -> None:
-    """Forget everything that belongs to the open file. A running training backend is asked
-    to stop (it saves a checkpoint): the modal operator that watched it does not survive a
-    file load or the add-on being disabled (a tracking run, which has nothing to save,
-    just stops). `keep_models=False` (unregister) also drops the
+    """Forget everything that belongs to the open file. A running training backend is stopped
+    and waited for while it saves a checkpoint: the modal operator that watched it does not
+    survive a file load, the add-on being disabled or Blender quitting (a tracking run, which
+    has nothing to save, just stops). `keep_models=False` (unregister) also drops the
     model caches."""
-    for run in (STATE.training_run, STATE.tracking_run):
-        if run is not None:
-            run.backend.cancel()
+    if STATE.training_run is not None:
+        # Nothing will poll it any more (Blender quitting disables the add-ons, a file
+        # load): wait while it finishes its step and saves, so the run keeps a checkpoint.
+        print("ArchHead: stopping training (saving a checkpoint) ...", flush=True)
+        STATE.training_run.backend.stop()
+    if STATE.tracking_run is not None:
+        STATE.tracking_run.backend.cancel()
     kept = (STATE.base_models, STATE.head_models, STATE.dialog_fields)
     kept = kept if keep_models else ({}, {}, {})
     fresh = RuntimeState(base_models=kept[0], head_models=kept[1], dialog_fields=kept[2])

@@ -1,7 +1,7 @@
 """Benchmark: import a long tracked sequence (default 1,000 frames, 100 expressions).
 
     python benchmarks/blender_import.py [--frames 1000] [--expressions 100]
-    blender -b --python benchmarks/blender_import.py -- [--frames 1000]
+    blender -b --python-exit-code 1 --python benchmarks/blender_import.py -- [--frames 1000]
 
 Prints seconds for reading + building, the per-frame evaluation time of the rig, the scene's
 memory (growth of resident memory across the import, each mode in a fresh process) and the

@@ -48,4 +48,8 @@ class BackendWatch:
         except (OSError, ValueError) as exc:  # InputError is a ValueError
             kind, message = "ERROR", str(exc)
         self.report({kind}, message)
+        if kind == "INFO" and not bpy.app.background:
+            # What the run added (a loaded avatar, an imported head) becomes an undo step:
+            # without one, Ctrl+Z went back past it and Redo could not bring it back.
+            bpy.ops.ed.undo_push(message=self.bl_label)
         return {"FINISHED"} if kind == "INFO" else {"CANCELLED"}

@@ -14,6 +14,17 @@ from archhead_blender.importing import import_sequence
 from archhead_blender.preferences import get_preferences
 
 
+def frame_selected(context) -> None:
+    """Every 3D view looks at the selection (the head is about 20 cm wide and could
+    otherwise sit unseen inside the default cube)."""
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            region = next((r for r in area.regions if r.type == "WINDOW"), None)
+            if area.type == "VIEW_3D" and region is not None:
+                with context.temp_override(window=window, area=area, region=region):
+                    bpy.ops.view3d.view_selected()
+
+
 class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
     """Import a tracked FLAME sequence as a rigged, shape-keyed, animated head"""
 
@@ -94,6 +105,8 @@ class ARCHHEAD_OT_import_sequence(bpy.types.Operator, ImportHelper):
         for w in caught:
             if issubclass(w.category, InputWarning):
                 self.report({"WARNING"}, str(w.message))
+        if not bpy.app.background:
+            frame_selected(context)
         self.report({"INFO"}, f"Imported {obj.name}")
         return {"FINISHED"}
 

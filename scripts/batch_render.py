@@ -1,6 +1,7 @@
 """Render frames of a .blend with ArchHead avatars, without the UI.
 
-    blender -b scene.blend --python scripts/batch_render.py -- --frames 1-20 --out DIR
+    blender -b scene.blend --python-exit-code 1 --python scripts/batch_render.py -- \
+        --frames 1-20 --out DIR
     python scripts/batch_render.py scene.blend --frames 1-20 --out DIR     (the bpy module)
 
 Options: --lod L fixes every avatar's level of detail (else its keys or driver decide);
@@ -35,7 +36,11 @@ def main(argv: list[str]) -> list[Path]:
     parser.add_argument("--exact", action="store_true")
     parser.add_argument("--cache-dir", default=None)
     parser.add_argument("--decode-only", action="store_true")
-    parser.add_argument("--engine", choices=("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH"))
+    parser.add_argument(
+        "--engine",
+        choices=("CYCLES", "BLENDER_EEVEE", "BLENDER_EEVEE_NEXT", "BLENDER_WORKBENCH"),
+        help="either EEVEE name means this Blender's EEVEE (4.2-4.4 call it BLENDER_EEVEE_NEXT)",
+    )
     parser.add_argument("--samples", type=int, default=None)
     args = parser.parse_args(argv)
     if args.decode_only and not args.cache_dir:
@@ -52,7 +57,8 @@ def main(argv: list[str]) -> list[Path]:
             obj.archhead_avatar.cache_dir = str(Path(args.cache_dir).resolve())
             obj.archhead_avatar.disk_cache = True
     if args.engine:
-        scene.render.engine = args.engine
+        eevee = args.engine.startswith("BLENDER_EEVEE")
+        scene.render.engine = api.eevee_engine() if eevee else args.engine
     if args.samples is not None:
         if scene.render.engine == "CYCLES":
             scene.cycles.samples = args.samples

@@ -1,7 +1,7 @@
 """The demo: everything on the built-in head, from a synthetic subject to a rendered clip.
 
     python scripts/demo.py [--out DIR] [--checkpoint AVATAR.npz]           (the bpy module)
-    blender -b --python scripts/demo.py -- [--out DIR] [--checkpoint AVATAR.npz]
+    blender -b --python-exit-code 1 --python scripts/demo.py -- [--out DIR] [--checkpoint CKPT]
     python -m archhead_addon demo [...]                                     (the same)
 
 Without --checkpoint it renders a small synthetic subject (Cycles) and trains a short avatar on

@@ -1,6 +1,6 @@
 """Import a tracked sequence and save a .blend, without the UI.
 
-    blender -b --python scripts/import_sequence.py -- SEQUENCE OUT.blend [--stride N] ...
+    blender -b --python-exit-code 1 --python scripts/import_sequence.py -- SEQUENCE OUT.blend ...
     python scripts/import_sequence.py SEQUENCE OUT.blend ...      (the `bpy` module)
 
 SEQUENCE `demo` imports the built-in talking-head trajectory on the built-in model.

@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/synthetic_subject.py --out DIR [--frames 300] [--size 256]
                                                   [--samples 16] [--seed 0] [--fps 25]
-    blender -b --python scripts/synthetic_subject.py -- --out DIR ...
+    blender -b --python-exit-code 1 --python scripts/synthetic_subject.py -- --out DIR ...
 
 What it writes: archhead_blender/synthetic_subject.py. Never imports torch.
 """

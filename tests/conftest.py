@@ -145,8 +145,22 @@ def demo_scene(addon):
     return make
 
 
+def pytest_addoption(parser):
+    parser.addoption(
+        "--ui",
+        action="store_true",
+        help="run the UI suite (tests/ui, marker `ui`: a Blender binary; make test-ui)",
+    )
+
+
 def pytest_collection_modifyitems(config, items):
-    """A `gpu` test without CUDA is skipped, not failed (CI has no GPU)."""
+    """A `gpu` test without CUDA is skipped, not failed (CI has no GPU). `ui` tests run only
+    with --ui (`make test-ui`); `make test` deselects them."""
+    if not config.getoption("--ui"):
+        ui = [item for item in items if item.get_closest_marker("ui")]
+        if ui:
+            config.hook.pytest_deselected(items=ui)
+            items[:] = [item for item in items if not item.get_closest_marker("ui")]
     try:
         import torch
 

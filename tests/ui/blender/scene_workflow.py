@@ -1,0 +1,160 @@
+"""An artist's first session: File > Import through the file browser, the panel, Load Avatar,
+undo and redo of both, a modal Decode cancelled half way, LOD by hand and by the
+camera-distance driver while the camera moves and the timeline plays, save.
+
+    blender --python scene_workflow.py -- SEQUENCE.npz AVATAR.npz OUT.blend
+"""
+
+import sys
+from pathlib import Path
+
+import bpy
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ui_steps  # noqa: E402
+from ui_driver import check, run_steps, script_args  # noqa: E402
+
+SEQUENCE, AVATAR, BLEND = (Path(p) for p in script_args()[:3])
+HEAD = SEQUENCE.stem
+
+
+def import_file(ui):
+    yield from ui_steps.file_browser(ui, "archhead.import_sequence", SEQUENCE)
+    yield from ui.wait_until(lambda: HEAD in bpy.data.objects, 120, "the imported head")
+    head = bpy.data.objects[HEAD]
+    ui.data["imported"] = sorted(o.name for o in bpy.data.objects)
+    check(bpy.context.view_layer.objects.active == head.parent, "the imported rig is not active")
+    check(head.select_get() and head.parent.select_get(), "the head and rig are not selected")
+    check(not bpy.data.objects["Cube"].select_get(), "the cube stayed selected")
+    camera = bpy.data.objects[f"{HEAD}_camera"]
+    check(camera.animation_data is None, "the fixed tracked camera is keyed")
+    yield 0.5
+    ui.screenshot("imported")
+
+
+def panel_with_head(ui):
+    yield from ui.show_sidebar()
+    ui.frame_selected()
+    yield 0.3
+    ui.screenshot("panel_head", area_type="VIEW_3D")
+
+
+def undo_import(ui):
+    yield from ui_steps.undo_redo(ui, lambda: HEAD in bpy.data.objects, "the imported head")
+
+
+def load(ui):
+    yield from ui_steps.file_browser(ui, "archhead.load_avatar", AVATAR)
+    name = f"{HEAD}_avatar"
+    yield from ui.wait_until(lambda: name in bpy.data.objects, 120, "the avatar object")
+    count = len(bpy.data.objects[name].data.vertices)
+    check(count > 1000, f"the avatar shows {count} Gaussians")
+    ui.data["gaussians_loaded"] = count
+    yield 0.5
+    ui.screenshot("avatar_loaded")
+
+
+def undo_load(ui):
+    name = f"{HEAD}_avatar"
+    yield from ui_steps.undo_redo(ui, lambda: name in bpy.data.objects, "the avatar")
+    yield from ui.wait_until(
+        lambda: len(bpy.data.objects[name].data.vertices) > 1000, 30, "points after redo"
+    )
+
+
+def decode_cancel(ui):
+    from archhead_blender.state import STATE
+
+    avatar = bpy.data.objects[f"{HEAD}_avatar"]
+    avatar.archhead_avatar.decode_frames = "ALL"
+    avatar.archhead_avatar.lod = 1.0  # software OpenGL draws LOD 0 slowly
+    ui.op("archhead.decode_avatar", invoke=True)
+    uid = avatar.session_uid
+    total = STATE.decode_progress[uid]["total"]
+    check(total >= 10, f"only {total} frames to decode")
+    yield from ui.wait_until(
+        lambda: STATE.decode_progress[uid]["done"] >= total // 2, 180, "half of the frames"
+    )
+    ui.screenshot("decode_progress")
+    ui.op("archhead.cancel_decode")
+    yield from ui.wait_until(lambda: uid not in STATE.decode_progress, 30, "the decode to stop")
+    done = len(ui_steps.avatar_session(avatar).decoded)
+    check(0 < done < total, f"cancelled decode kept {done} of {total} frames")
+    ui.data["decode"] = {"total": total, "done_at_cancel": done}
+    ui.screenshot("decode_cancelled")
+
+
+def lod_by_hand(ui):
+    avatar = bpy.data.objects[f"{HEAD}_avatar"]
+    counts = {}
+    for lod in (0.0, 1.0):
+        avatar.archhead_avatar.lod = lod
+        yield from ui.wait_until(
+            lambda lod=lod: ui_steps.shows_lod(avatar, lod), 60, f"the points at LOD {lod:g}"
+        )
+        counts[lod] = len(avatar.data.vertices)
+        ui.frame_selected()
+        yield 0.3
+        ui.screenshot(f"viewport_lod{lod:g}", area_type="VIEW_3D")
+    check(counts[0.0] > 5 * counts[1.0], f"Gaussians at LOD 0 / 1: {counts}")
+    ui.data["gaussians_by_lod"] = counts
+
+
+def lod_driver_playback(ui):
+    avatar = bpy.data.objects[f"{HEAD}_avatar"]
+    scene = bpy.context.scene
+    # from LOD 1 to about 0.2 (fewer Gaussians to draw with software OpenGL than LOD 0)
+    dolly = ui_steps.dolly_camera(scene, bpy.data.objects[HEAD], far=3.5, near=1.0)
+    scene.camera = dolly
+    ui.op("archhead.drive_lod", near=0.5, far=3.0)
+    check(avatar.animation_data and avatar.animation_data.drivers, "no LOD driver")
+    scene.frame_set(scene.frame_start)
+    seen = {}
+    with ui.context("VIEW_3D"):
+        bpy.ops.screen.animation_play()
+    try:
+        yield from ui.wait_until(
+            lambda: (
+                seen.update({scene.frame_current: ui_steps.evaluated_lod(avatar)})
+                or scene.frame_current >= scene.frame_end - 1
+            ),
+            120,
+            "playback to reach the end",
+            poll=0.05,
+        )
+    finally:
+        with ui.context("VIEW_3D"):
+            bpy.ops.screen.animation_cancel(restore_frame=False)
+    ui.data["driven_lod"] = {str(k): round(v, 3) for k, v in sorted(seen.items())}
+    check(len(seen) >= 3, f"playback showed only frames {sorted(seen)}")
+    lods = [seen[f] for f in sorted(seen)]
+    check(lods[0] > 0.9 and lods[-1] < 0.35, f"driven LOD did not follow the dolly: {lods}")
+    check(lods == sorted(lods, reverse=True), f"driven LOD not falling as the camera nears: {lods}")
+    # what the points show follows the driver
+    yield from ui.wait_until(
+        lambda: ui_steps.shows_lod(avatar, ui_steps.evaluated_lod(avatar)),
+        30,
+        "the points to show the driven LOD",
+    )
+    ui.screenshot("driver_end_of_playback", area_type="VIEW_3D")
+
+
+def save(ui):
+    with ui.context(None):
+        bpy.ops.wm.save_as_mainfile(filepath=str(BLEND))
+    check(BLEND.is_file(), f"{BLEND} not written")
+
+
+run_steps(
+    [
+        ("File > Import", import_file),
+        ("panel with the head", panel_with_head),
+        ("undo and redo the import", undo_import),
+        ("Load Avatar", load),
+        ("undo and redo Load Avatar", undo_load),
+        ("modal Decode, cancelled half way", decode_cancel),
+        ("LOD by hand", lod_by_hand),
+        ("LOD driver during playback", lod_driver_playback),
+        ("save", save),
+    ]
+)

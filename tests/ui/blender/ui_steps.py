@@ -1,0 +1,88 @@
+"""Pieces the UI test scripts share: the file browser, undo / redo by the keyboard, what an
+avatar shows, a camera dolly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+from ui_driver import check
+
+
+def _file_browser():
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "FILE_BROWSER":
+                return window, area
+    return None
+
+
+def file_browser(ui, idname: str, path: Path):
+    """Open `idname`'s file browser as its button does, pick `path` in it (folder and file
+    name fields), press Return."""
+    ui.op(idname, invoke=True)
+    yield from ui.wait_until(lambda: _file_browser() is not None, 30, "the file browser")
+    yield 0.5
+    window, area = _file_browser()
+    params = area.spaces.active.params
+    params.directory = str(path.parent).encode()
+    params.filename = path.name
+    yield 0.5
+    ui.screenshot(f"file_browser_{idname.split('.')[1]}", window=window)
+    ui.key("RET", window=window, area=area)  # Return in the file list: Accept
+    yield from ui.wait_until(lambda: _file_browser() is None, 60, "the file browser to close")
+
+
+def undo_redo(ui, present, what: str):
+    """Ctrl+Z takes `what` away, Ctrl+Shift+Z brings it back (keys typed over the 3D view)."""
+    check(present(), f"{what} missing before undo")
+    ui.key("Z", ctrl=True)
+    yield from ui.wait_until(lambda: not present(), 20, f"Ctrl+Z to remove {what}")
+    ui.key("Z", ctrl=True, shift=True)
+    yield from ui.wait_until(present, 20, f"Ctrl+Shift+Z to bring back {what}")
+    yield 0.3
+
+
+def avatar_session(obj):
+    from archhead_blender.avatar_session import session
+
+    return session(obj)
+
+
+def evaluated_lod(obj) -> float:
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    return float(obj.evaluated_get(depsgraph).archhead_avatar.lod)
+
+
+def shows_lod(obj, lod: float) -> bool:
+    """Whether the points hold the avatar's current frame at level of detail `lod`."""
+    from archhead_blender.scene_state import frame_codes
+
+    current = avatar_session(obj)
+    if current.shown is None:
+        return False
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    codes = frame_codes(obj.archhead_avatar.head, depsgraph, current.joint_dirs)
+    return current.shown[0] == current.key(codes, lod)
+
+
+def head_centre(head):
+    import mathutils
+
+    corners = [head.matrix_world @ mathutils.Vector(c) for c in head.bound_box]
+    return sum(corners, mathutils.Vector()) / 8
+
+
+def dolly_camera(scene, head, far: float, near: float, name="ui_dolly"):
+    """A new camera looking at the head along -Y, from `far` metres at the first frame to
+    `near` at the last."""
+    import mathutils
+
+    centre = head_centre(head)
+    camera = bpy.data.objects.new(name, bpy.data.cameras.new(name))
+    scene.collection.objects.link(camera)
+    camera.rotation_euler = (1.5708, 0.0, 0.0)  # looks along +Y
+    for frame, distance in ((scene.frame_start, far), (scene.frame_end, near)):
+        camera.location = centre - mathutils.Vector((0.0, distance, 0.0))
+        camera.keyframe_insert("location", frame=frame)
+    return camera

@@ -1,0 +1,102 @@
+"""Fixtures of the UI suite (ui_session.py says what a session does)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from ui_session import OUT, REPO, BlenderSession, build_zip
+
+from scripts import blender_env
+
+
+@pytest.fixture(scope="session")
+def blender_session():
+    """The mounted env with the extension installed in a clean profile (once a session)."""
+    start = time.monotonic()
+    root = blender_env.ensure_env()
+    build_s = time.monotonic() - start
+    OUT.mkdir(parents=True, exist_ok=True)
+    with blender_env.env_lock(root), blender_env.mounted(root):
+        profile = OUT / "profile"
+        if profile.exists():
+            shutil.rmtree(profile)
+        profile.mkdir(parents=True)
+        session = BlenderSession(root, profile)
+        session.times["env"] = round(build_s, 1)
+        zip_path = build_zip(OUT / "dist")
+        session.zip = zip_path
+        install = OUT / "install"
+        text = session.batch(
+            ["--command", "extension", "install-file", "-r", "user_default", "-e", str(zip_path)],
+            install,
+            "install",
+            timeout=300,
+        )
+        session.version = text
+        session.ui("setup_profile.py", install, sys.executable, timeout=300)
+        yield session
+        (OUT / "times.json").write_text(json.dumps(session.times, indent=1))
+
+
+@pytest.fixture(scope="session")
+def ui_data(blender_session) -> dict[str, Path]:
+    """Inputs made on the host once a session: a tracked sequence (the built-in
+    talking head, 24 frames) and an untrained avatar of the built-in model."""
+    import numpy as np  # noqa: F401 - the sequence writer needs it
+
+    from archhead_addon.sequences import write_canonical
+    from archhead_addon.sequences.demo import demo_sequence
+
+    folder = OUT / "data"
+    folder.mkdir(parents=True, exist_ok=True)
+    sequence = folder / "talking_head.npz"
+    if not sequence.exists():
+        write_canonical(demo_sequence(frames=24), sequence)
+    avatar = folder / "untrained_avatar.npz"
+    if not avatar.exists():
+        subprocess.run(
+            [
+                "nice",
+                "-n",
+                "15",
+                sys.executable,
+                "-m",
+                "archhead_addon.avatar.untrained",
+                str(avatar),
+            ],
+            check=True,
+            cwd=REPO,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+        )
+    return {"sequence": sequence, "avatar": avatar, "folder": folder}
+
+
+@pytest.fixture(scope="session")
+def saved_scene(blender_session, ui_data):
+    """scene_workflow.py's run (import, load, decode, LOD, driver) and the .blend it saved."""
+    out = OUT / "scene_workflow"
+    if out.exists():
+        shutil.rmtree(out)
+    blend = out / "scene.blend"
+    result = blender_session.ui(
+        "scene_workflow.py", out, str(ui_data["sequence"]), str(ui_data["avatar"]), str(blend)
+    )
+    return result, blend
+
+
+@pytest.fixture(scope="session")
+def tiny_config() -> Path:
+    """The training tests' tiny config (tests/training_subject.py) with room to cancel."""
+    from training_subject import TINY_CONFIG
+
+    path = OUT / "data" / "tiny.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({**TINY_CONFIG, "stage1_steps": 600, "checkpoint_every": 50}))
+    return path

@@ -1,0 +1,160 @@
+"""The UI suite (`make test-ui`, marker `ui`): the extension zip installed into a real Blender
+binary's clean user profile, driven under Xvfb.
+
+Once per session: the Blender env (scripts/blender_env.py: built or reused from the cache)
+is mounted, `make extension`'s zip is built and installed with Blender's own command line
+(`blender --command extension install-file -r user_default -e ZIP`) into a new profile under
+out/ui/profile, and Backend Python is set to this Python (its environment has torch; the
+env binds it at the same path). Each test runs Blender-side scripts of tests/ui/blender/
+(`BlenderSession.ui` for a window under Xvfb, `.batch` for `blender -b`); a failure names the
+step and keeps its screenshot in out/ui/<test>/. After every Blender run, no process may be
+left in the env (a leftover Blender, Xvfb or backend fails the test and is ended).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from scripts import blender_env
+
+UI_DIR = Path(__file__).resolve().parent
+REPO = UI_DIR.parents[1]
+OUT = REPO / "out" / "ui"
+SCRIPTS = UI_DIR / "blender"
+SCREEN = "1400x900x24"
+
+
+def _free_display() -> int:
+    """An X display number nobody uses (the env's /tmp is private, but X's abstract
+    sockets are shared with the host)."""
+    used = Path("/proc/net/unix").read_text()
+    for number in range(140, 400):
+        if f"/tmp/.X11-unix/X{number}" not in used and not Path(f"/tmp/.X{number}-lock").exists():
+            return number
+    raise RuntimeError("no free X display number")
+
+
+class BlenderRunError(AssertionError):
+    pass
+
+
+class BlenderSession:
+    def __init__(self, root: Path, profile: Path):
+        self.root, self.profile = root, profile
+        self.version = ""
+        self.times: dict[str, float] = {}
+
+    def env(self, out: Path) -> dict[str, str]:
+        return {
+            "HOME": str(self.profile),
+            "BLENDER_USER_RESOURCES": str(self.profile / "blender"),
+            "ARCHHEAD_CACHE": str(self.profile / "archhead-cache"),
+            "ARCHHEAD_UI_OUT": str(out),
+            "OMP_WAIT_POLICY": "PASSIVE",
+            "OMP_NUM_THREADS": "2",
+            "PYTHONUNBUFFERED": "1",
+        }
+
+    def run(self, argv: list[str], out: Path, timeout: float, display: bool, name: str):
+        """argv (a blender command line) in the env; its output goes to out/NAME.log.
+        Returns (exit code, log text). Fails when a process is left behind."""
+        out.mkdir(parents=True, exist_ok=True)
+        if display:
+            argv = [
+                "xvfb-run",
+                "-n",
+                str(_free_display()),
+                "-s",
+                f"-screen 0 {SCREEN} -nolisten tcp -fbdir /tmp",
+                *argv,
+            ]
+        log_path = out / f"{name}.log"
+        start = time.monotonic()
+        with open(log_path, "w") as log:
+            try:
+                proc = blender_env.chroot_run(
+                    self.root,
+                    argv,
+                    env=self.env(out),
+                    cwd=str(REPO),
+                    timeout=timeout,
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                )
+                code = proc.returncode
+            except subprocess.TimeoutExpired:
+                code = None
+        self.times[name] = round(time.monotonic() - start, 1)
+        text = log_path.read_text(errors="replace")
+        time.sleep(0.5)
+        left = self.leftovers()
+        if code is None:
+            raise BlenderRunError(
+                f"{name}: no exit after {timeout} s; log {log_path}\n{text[-3000:]}"
+            )
+        if left:
+            raise BlenderRunError(f"{name}: processes left behind: {left}")
+        return code, text
+
+    def leftovers(self) -> list[str]:
+        """Commands still running in the env (ended here, and reported)."""
+        names = []
+        for pid in blender_env.processes_in(self.root):
+            try:
+                names.append(Path(f"/proc/{pid}/cmdline").read_text().replace("\0", " ")[:120])
+            except OSError:
+                continue
+        if names:
+            blender_env.kill_processes(self.root)
+        return names
+
+    def ui(self, script: str, out: Path, *args: str, blend: str | None = None, timeout=420):
+        """A Blender window running tests/ui/blender/SCRIPT; returns its result.json.
+        A failing step raises with its name, error and screenshot."""
+        argv = ["blender", "--enable-event-simulate", "--python-exit-code", "1"]
+        if blend:
+            argv.append(str(blend))
+        argv += ["--python", str(SCRIPTS / script), "--", *args]
+        result_path = out / "result.json"
+        if result_path.exists():
+            result_path.unlink()
+        code, text = self.run(argv, out, timeout, display=True, name=Path(script).stem)
+        if not result_path.exists():
+            raise BlenderRunError(f"{script}: exit {code}, no result.json\n{text[-4000:]}")
+        result = json.loads(result_path.read_text())
+        if result["status"] != "passed":
+            failed = result["steps"][-1] if result["steps"] else {}
+            shot = failed.get("screenshot")
+            raise BlenderRunError(
+                f"{script}: step '{result.get('failed_step')}' failed: {failed.get('error')}\n"
+                f"screenshot: {out / shot if shot else 'none'}\n"
+                f"{failed.get('traceback', '')}\n--- log tail ---\n{text[-3000:]}"
+            )
+        if code != 0:
+            raise BlenderRunError(f"{script}: exit {code} after passing steps\n{text[-3000:]}")
+        return result
+
+    def batch(self, args: list[str], out: Path, name: str, timeout=420) -> str:
+        """`blender -b ... --python-exit-code 1 ARGS`; returns its output, fails on exit != 0."""
+        argv = ["blender", "-b", "--python-exit-code", "1", *args]
+        code, text = self.run(argv, out, timeout, display=False, name=name)
+        if code != 0:
+            raise BlenderRunError(f"{name}: exit {code}\n{text[-4000:]}")
+        return text
+
+
+def build_zip(out: Path) -> Path:
+    """What `make extension` builds (scripts/build_extension.py), into out/."""
+    from scripts.build_extension import build
+
+    kernel = REPO / "archhead_addon/splat/_build/libarchhead_splat.so"
+    if not kernel.exists():  # a worktree without `make setup`: build the kernel
+        subprocess.run([sys.executable, "-m", "archhead_addon.splat.build"], cwd=REPO, check=True)
+    if out.exists():
+        shutil.rmtree(out)
+    return build(out)
