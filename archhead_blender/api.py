@@ -26,7 +26,7 @@ from archhead_addon.timing import Steps, Stopwatch, restart_with_threads, time_c
 from archhead_addon.train.run_folder import RunFolder
 
 from .avatar_session import session
-from .batch_render import read_image, render_frames, scene_avatars
+from .batch_render import read_image, render_frames, scene_avatars, write_png
 from .compat import eevee_engine
 from .decoding import decode_frames
 from .lod_driver import drive_lod_by_distance
@@ -63,6 +63,7 @@ __all__ = [
     "train_command",
     "untrained_checkpoint",
     "write_canonical",
+    "write_png",
     "write_points",
 ]
 

@@ -69,58 +69,80 @@ def dolly_camera(scene, tracked, target: np.ndarray, frames: range):
     return camera
 
 
+def _pillow():
+    """Pillow when this Python has it (the project's environment), else None: Blender's own
+    Python lacks it, and the demo then writes unlabelled sheets and no GIF."""
+    try:
+        from PIL import Image, ImageDraw
+    except ImportError:
+        return None
+    return Image, ImageDraw
+
+
 def composite(path: Path) -> np.ndarray:
     """An RGBA PNG over BACKGROUND, (H,W,3) uint8."""
-    from PIL import Image
-
-    rgba = np.asarray(Image.open(path).convert("RGBA"), np.float32) / 255
+    rgba = api.read_image(path)
     rgb = rgba[..., :3] * rgba[..., 3:] + np.array(BACKGROUND) * (1 - rgba[..., 3:])
     return np.round(255 * rgb).astype(np.uint8)
 
 
 def contact_sheet(context, runtime, frame: int, folder: Path, sheet: Path) -> list:
     """The avatar at SHEET_LODS from the scene camera at `frame`, side by side, labelled with
-    the level of detail, the UV resolution S and the Gaussian count, cropped to the head;
-    returns [(l, S, Gaussians)]."""
-    from PIL import Image, ImageDraw
-
+    the level of detail, the UV resolution S and the Gaussian count (with Pillow), cropped to
+    the head; returns [(l, S, Gaussians)]."""
     tiles, alpha = [], []
     for lod in SHEET_LODS:
         path = api.render_frames(context, [frame], folder / f"lod_{lod:.2f}", lod=lod, exact=True)[
             0
         ]
         tiles.append(composite(path))
-        alpha.append(np.asarray(Image.open(path).convert("RGBA"))[..., 3])
-    rows, cols = np.nonzero(np.max(alpha, axis=0) > 8)
+        alpha.append(api.read_image(path)[..., 3])
+    rows, cols = np.nonzero(np.max(alpha, axis=0) > 8 / 255)
     pad = 6
     top, bottom = max(rows.min() - pad, 0), min(rows.max() + pad + 1, tiles[0].shape[0])
     left, right = max(cols.min() - pad, 0), min(cols.max() + pad + 1, tiles[0].shape[1])
-    crops = [Image.fromarray(np.ascontiguousarray(t[top:bottom, left:right])) for t in tiles]
-    width, height = crops[0].size
-    label = 26  # two lines of the default font
-    out = Image.new("RGB", (width * len(crops), height + label), (255, 255, 255))
-    # a grey rule between tiles, since the background is white too
-    draw = ImageDraw.Draw(out)
+    crops = [np.ascontiguousarray(t[top:bottom, left:right]) for t in tiles]
+    for crop in crops[1:]:
+        crop[:, 0] = 200  # a grey rule between tiles, since the background is white too
     levels = [
         (lod, runtime.resolution(lod), runtime.raster.table(runtime.resolution(lod)).count)
         for lod in SHEET_LODS
     ]
-    for i, ((lod, size, count), crop) in enumerate(zip(levels, crops, strict=True)):
-        out.paste(crop, (i * width, label))
-        draw.line([(i * width, 0), (i * width, out.height)], fill=(200, 200, 200))
-        draw.text((i * width + 3, 1), f"LOD {lod:g}, S {size}\n{count:,} Gaussians", fill=(0, 0, 0))
+    pixels = np.concatenate(crops, axis=1)
+    pillow = _pillow()
+    if pillow is not None:
+        Image, ImageDraw = pillow
+        width, label = crops[0].shape[1], 26  # two lines of the default font
+        out = Image.new("RGB", (pixels.shape[1], pixels.shape[0] + label), (255, 255, 255))
+        out.paste(Image.fromarray(pixels), (0, label))
+        draw = ImageDraw.Draw(out)
+        for i, (lod, size, count) in enumerate(levels):
+            draw.line([(i * width, 0), (i * width, out.height)], fill=(200, 200, 200))
+            draw.text((i * width + 3, 1), f"LOD {lod:g}, S {size}\n{count:,} Gaussians", fill=0)
+        pixels = np.asarray(out)
+    else:
+        print(
+            "demo: contact sheet, left to right: "
+            + "; ".join(
+                f"LOD {lod:g}, S {size}, {count:,} Gaussians" for lod, size, count in levels
+            )
+        )
     sheet.parent.mkdir(parents=True, exist_ok=True)
-    out.save(sheet)
+    api.write_png(sheet, pixels.astype(np.float32) / 255, np.ones(pixels.shape[:2], np.float32))
     return levels
 
 
-def write_gif(frames: list[Path], path: Path, fps: float) -> None:
-    from PIL import Image
-
-    images = [Image.fromarray(composite(p)) for p in frames]
+def write_gif(frames: list[Path], path: Path, fps: float) -> bool:
+    """The clip as a looping GIF; False (nothing written) where Pillow is missing."""
+    pillow = _pillow()
+    if pillow is None:
+        print("demo: no GIF (this Python has no Pillow); the clip's frames are PNGs")
+        return False
+    images = [pillow[0].fromarray(composite(p)) for p in frames]
     images[0].save(
         path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0
     )
+    return True
 
 
 def run(args) -> dict:
@@ -189,7 +211,7 @@ def run(args) -> dict:
         decoded = api.decode_frames(context, avatar)
     with steps("render clip"):
         clip = api.render_frames(context, list(frames), out / "clip", exact=True)
-        write_gif(clip, out / "clip.gif", scene.render.fps)
+        gif = out / "clip.gif" if write_gif(clip, out / "clip.gif", scene.render.fps) else None
     driven = {}
     for frame in (frames.start, frames.stop - 1):
         scene.frame_set(frame)
@@ -200,7 +222,7 @@ def run(args) -> dict:
         "blend": str(blend),
         "contact_sheet": str(sheet),
         "clip": str(out / "clip"),
-        "gif": str(out / "clip.gif"),
+        "gif": str(gif) if gif else None,
         "checkpoint": str(checkpoint),
         "frames": len(clip),
         "decoded": decoded,
