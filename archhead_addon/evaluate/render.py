@@ -3,7 +3,6 @@ Blender uses, timed per part (decode, then SH colour + splat)."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,6 +10,7 @@ import numpy as np
 from ..avatar.runtime import AvatarRuntime
 from ..splat import kernel
 from ..splat.sh import degree_from_coeffs, sh_to_rgb_numpy
+from ..timing import Stopwatch
 
 DRIVING_CODES = ("expr", "jaw", "neck", "eyes", "rotation", "translation")
 
@@ -40,11 +40,12 @@ def render_frame(
 ) -> RenderedFrame:
     """One frame at level `lod`: codes (DRIVING_CODES, others ignored), K (3,3) and OpenCV
     w2c (4,4) for an image of size (H, W)."""
-    start = time.perf_counter()
+    watch = Stopwatch()
     g = runtime.decode(
         lod, precision=precision, **{k: codes[k] for k in DRIVING_CODES if k in codes}
     )
-    decoded = time.perf_counter()
+    decode_ms = 1e3 * watch.seconds
+    watch = Stopwatch()
     sh = np.asarray(g.sh, np.float32)
     centre = np.linalg.inv(np.asarray(w2c, np.float64))[:3, 3]
     colours = sh_to_rgb_numpy(degree_from_coeffs(sh.shape[1]), g.means - centre, sh)
@@ -57,5 +58,4 @@ def render_frame(
         num_threads=num_threads,
     )
     raster = kernel.render(g.means, g.quats, g.log_scales, g.opacity_logits, colours, settings)
-    done = time.perf_counter()
-    return RenderedFrame(raster.rgb, len(g), 1e3 * (decoded - start), 1e3 * (done - decoded))
+    return RenderedFrame(raster.rgb, len(g), decode_ms, 1e3 * watch.seconds)

@@ -15,7 +15,6 @@ Two stages: the rigid pose and focal length first, then everything.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +22,7 @@ import numpy as np
 from ..flame.model import FlameModel
 from ..flame.subset import vertex_subset
 from ..sequences import Sequence
+from ..timing import Stopwatch
 from .embedding import LandmarkEmbedding
 
 CAMERA_DISTANCE = 1.0  # metres from the FLAME origin to the camera at the rest pose
@@ -89,7 +89,7 @@ def fit_landmarks(
     from ..flame.lbs_torch import FlameLayer
 
     opt = options or FitOptions()
-    start = time.monotonic()
+    watch = Stopwatch()
     torch.manual_seed(0)
     n_frames = len(landmarks)
     n_shape, n_expr = min(opt.n_shape, model.n_shape), min(opt.n_expr, model.n_expr)
@@ -222,7 +222,7 @@ def fit_landmarks(
         np.median(residual[:, good], axis=1),
         residual,
         projected.numpy().astype(np.float64),
-        time.monotonic() - start,
+        watch.seconds,
     )
 
 

@@ -6,7 +6,6 @@ position is known) so memory holds landmarks and small masks, not the video.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +14,7 @@ from ..flame.lbs import forward
 from ..flame.model import load_model
 from ..io.errors import InputError, warn_input
 from ..sequences import write_canonical
+from ..timing import Stopwatch
 from ..train.dataset import TRACKING_FILE
 from ..train.images import resize
 from .detect import MAX_HAND_COVER, FaceDetector
@@ -56,13 +56,13 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         raise InputError(None, "size", f"{opt.size} px is outside 16 ... 4096")
     say = progress or (lambda **event: None)
     times = {}
-    t0 = time.monotonic()
+    watch = Stopwatch()
     source = open_frames(source_path)
     model = load_model(opt.flame)
     embedding = landmark_embedding(model)
-    times["model"] = time.monotonic() - t0
+    times["model"] = watch.seconds
 
-    t0 = time.monotonic()
+    watch = Stopwatch()
     numbers, landmarks, masks, dropped, multi = [], [], [], [], 0
     size = None
     total = source.count if opt.max_frames is None else min(opt.max_frames, source.count)
@@ -93,7 +93,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
                 landmarks.append(found.landmarks)
                 masks.append(np.round(found.mask * 255).astype(np.uint8))
             say(event="step", stage="detect", step=len(numbers) + len(dropped), total=total)
-    times["detect"] = time.monotonic() - t0
+    times["detect"] = watch.seconds
     n_read = len(numbers) + len(dropped)
     if multi:
         warn_input(
@@ -112,7 +112,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     landmarks = np.array(landmarks)
     numbers = np.array(numbers)
 
-    t0 = time.monotonic()
+    watch = Stopwatch()
     fit = fit_landmarks(
         model,
         embedding,
@@ -123,7 +123,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         FitOptions(focal=opt.focal),
         progress=lambda d, n, e: say(event="step", stage="fit", step=d, total=n),
     )
-    times["fit"] = time.monotonic() - t0
+    times["fit"] = watch.seconds
     limit = max(OUTLIER_RATIO * np.median(fit.residual_px), OUTLIER_MIN_PX)
     keep = fit.residual_px <= limit
     for number, r in zip(numbers[~keep], fit.residual_px[~keep], strict=True):
@@ -158,7 +158,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         image_size=(opt.size, opt.size),
     )
 
-    t0 = time.monotonic()
+    watch = Stopwatch()
     out_size = (opt.size, opt.size)
     cut_rows = _neck_rows(model, codes, K, fit.w2c, out_size)
     position = {int(numbers[i]): j for j, i in enumerate(kept)}
@@ -175,7 +175,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             mask[cut_rows[j] :] = 0.0  # clothes and shoulders below the head mesh
             write_frame(stage, number, frame, mask)
             say(event="step", stage="write", step=j + 1, total=n)
-        times["write"] = time.monotonic() - t0
+        times["write"] = watch.seconds
         report = _report(
             source,
             opt,
