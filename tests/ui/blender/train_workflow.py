@@ -32,17 +32,8 @@ def import_subject(ui):
 
 
 def train_and_cancel(ui):
-    ui.op(
-        "archhead.train_avatar",
-        frames_dir=str(SUBJECT / "frames"),
-        tracking=str(SUBJECT / "tracking.npz"),
-        out_dir=str(RUN),
-        base_config=str(CONFIG),
-    )
-    run = current_run()
-    check(run is not None, "no training run after Train Avatar")
-    pid = run.backend.process.pid
-    ui.data["backend_pid"] = pid
+    run = ui_steps.start_training(ui, SUBJECT, CONFIG, RUN)
+    pid = ui.data["backend_pid"]
     ui.screenshot("training_starting")
     yield from ui.wait_until(lambda: run.status.step >= 3, 240, "three training steps")
     yield 1.0

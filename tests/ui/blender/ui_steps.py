@@ -1,5 +1,5 @@
 """Pieces the UI test scripts share: the file browser, undo / redo by the keyboard, what an
-avatar shows, a camera dolly."""
+avatar shows, a camera dolly, Train Avatar on the tiny subject."""
 
 from __future__ import annotations
 
@@ -86,3 +86,21 @@ def dolly_camera(scene, head, far: float, near: float, name="ui_dolly"):
         camera.location = centre - mathutils.Vector((0.0, distance, 0.0))
         camera.keyframe_insert("location", frame=frame)
     return camera
+
+
+def start_training(ui, subject: Path, config: Path, out: Path):
+    """Train Avatar on a tracked folder (frames/, tracking.npz) with a base config; returns
+    the run, its backend's pid kept in ui.data for the orphan check."""
+    from archhead_blender.training import current_run
+
+    ui.op(
+        "archhead.train_avatar",
+        frames_dir=str(subject / "frames"),
+        tracking=str(subject / "tracking.npz"),
+        out_dir=str(out),
+        base_config=str(config),
+    )
+    run = current_run()
+    check(run is not None, "no training run after Train Avatar")
+    ui.data["backend_pid"] = run.backend.process.pid
+    return run
