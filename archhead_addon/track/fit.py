@@ -211,7 +211,11 @@ def fit_landmarks(
         k: p[k].detach().numpy().astype(np.float64)
         for k in ("expr", "jaw", "eyes", "rotation", "translation")
     }
-    codes["shape"] = p["shape"].detach().numpy()[0].astype(np.float64)
+    # the model's full widths (zeros beyond the fitted components), so that readers of the
+    # tracking do not warn about padding
+    codes["shape"] = np.zeros(model.n_shape)
+    codes["shape"][:n_shape] = p["shape"].detach().numpy()[0]
+    codes["expr"] = np.pad(codes["expr"], ((0, 0), (0, model.n_expr - n_expr)))
     codes["neck"] = np.zeros((n_frames, 3))
     good = emb.weight > 0.5
     return FitResult(
