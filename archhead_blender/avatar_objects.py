@@ -92,7 +92,8 @@ def load_avatar(context, head, path) -> tuple[bpy.types.Object, list[str]]:
 
 def _make_room(head, scene) -> None:
     """The head mesh stays evaluated (its shape keys drive the avatar) but no longer renders:
-    ray visibility off (EEVEE and Cycles), a wireframe in the viewport."""
+    ray visibility off (EEVEE and Cycles), only its bounds in the viewport (its wireframe
+    covered the avatar)."""
     for flag in (
         "visible_camera",
         "visible_diffuse",
@@ -102,7 +103,7 @@ def _make_room(head, scene) -> None:
         "visible_shadow",
     ):
         setattr(head, flag, False)
-    head.display_type = "WIRE"
+    head.display_type = "BOUNDS"
     scene.render.use_lock_interface = True  # the handlers edit the points during renders
     cycles = getattr(scene, "cycles", None)
     if cycles is not None:

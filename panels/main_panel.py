@@ -50,7 +50,9 @@ def _draw_avatar(layout, context, head):
         box.operator("archhead.load_avatar", icon="SHADING_RENDERED")
         return
     settings = obj.archhead_avatar
-    box.label(text=f"{obj.name}: {len(obj.data.vertices):,} Gaussians", icon="POINTCLOUD_DATA")
+    # one fact a line: the default sidebar width cut "name: N Gaussians" off
+    box.label(text=obj.name, icon="POINTCLOUD_DATA")
+    box.label(text=f"{len(obj.data.vertices):,} Gaussians")
     box.label(text=bpy.path.basename(settings.checkpoint), icon="FILE")
     if obj.session_uid in STATE.errors:
         box.label(text=STATE.errors[obj.session_uid], icon="ERROR")
@@ -60,7 +62,8 @@ def _draw_avatar(layout, context, head):
     col.prop(settings, "decode_frames")
     if settings.decode_frames == "STRIDE":
         col.prop(settings, "stride")
-    col.prop(settings, "between")
+    col.label(text="Between decoded frames:")
+    col.prop(settings, "between", text="")
     state = STATE.decode_progress.get(obj.session_uid)
     if state is None:
         box.operator("archhead.decode_avatar", icon="RENDER_ANIMATION")

@@ -71,7 +71,7 @@ def test_points_are_the_decoded_codes_of_the_head(avatar):
     obj, head = avatar["obj"], avatar["head"]
     assert obj.parent == head.parent and obj.modifiers[0].node_group.name == "ArchHead Gaussians"
     np.testing.assert_allclose(np.array(obj.matrix_world), FLAME_TO_BLENDER, atol=1e-6)
-    assert not head.visible_camera and head.display_type == "WIRE"
+    assert not head.visible_camera and head.display_type == "BOUNDS"
     assert bpy.context.scene.render.use_lock_interface
     for frame in (1, 4):
         bpy.context.scene.frame_set(frame)
