@@ -40,7 +40,11 @@ class ARCHHEAD_OT_export_ply(bpy.types.Operator, ExportHelper):
 
     @classmethod
     def poll(cls, context):
-        return active_avatar(context) is not None
+        if active_avatar(context) is not None:
+            return True
+        # the tooltip of the greyed File > Export entry says why
+        cls.poll_message_set("Select an ArchHead avatar, or its head (Load Avatar in the sidebar)")
+        return False
 
     def execute(self, context):
         scene = context.scene

@@ -322,3 +322,17 @@ def test_matrix_world_follows_the_rig(avatar):
     bpy.context.view_layer.update()
     np.testing.assert_allclose(np.array(avatar["obj"].matrix_world)[:3, 3], [1, 2, 3], atol=1e-6)
     rig.matrix_world = saved
+
+
+def test_export_without_an_avatar_says_what_to_select(avatar, tmp_path):
+    """File > Export > Gaussians is greyed out with no avatar active; its tooltip (the poll
+    message, which bpy.ops also raises) says what to select."""
+    other = bpy.data.objects.new("not_a_head", None)
+    bpy.context.scene.collection.objects.link(other)
+    bpy.context.view_layer.objects.active = other
+    try:
+        with pytest.raises(RuntimeError, match="Select an ArchHead avatar"):
+            bpy.ops.archhead.export_ply(filepath=str(tmp_path / "none.ply"))
+    finally:
+        bpy.context.view_layer.objects.active = avatar["obj"]
+        bpy.data.objects.remove(other)
