@@ -30,8 +30,6 @@ PRESET = config_data()  # read once: the properties' defaults
 OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
 DIALOG_KEY = "train_avatar"  # its remembered fields in STATE.dialog_fields
 REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "resume", "base_config")
-# `preset` is declared before the fields it fills in: Blender applies an operator's given
-# properties in declaration order, so a script's explicit resolution or steps win.
 PRESET_HELP = {
     "cpu": "The CPU avatar: 256 px, 5,500 steps (about 45 min on 2 cores)",
     "cpu_short": "The CPU preset with 2,500 steps (about 20 min on 2 cores)",
@@ -76,6 +74,8 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
     out_dir: bpy.props.StringProperty(
         name="Output", subtype="DIR_PATH", description="Checkpoints, config and log go here"
     )
+    # declared before the fields it fills in: Blender applies an operator's given properties
+    # in declaration order, so a script's explicit resolution or steps win
     preset: bpy.props.EnumProperty(
         name="Preset",
         items=PRESET_ITEMS,
