@@ -24,6 +24,7 @@ from archhead_addon.splat.frame import SplatFrame
 
 from .avatar_props import is_avatar
 from .avatar_session import forget_shown, prune_sessions, session
+from .lod_driver import follow_scene_camera
 from .point_instances import write_points
 from .scene_state import avatar_lod, camera_in_object, frame_codes
 from .state import STATE, reset
@@ -77,6 +78,7 @@ def refresh_scene(scene, depsgraph) -> None:
         if not is_avatar(obj):
             continue
         try:
+            follow_scene_camera(obj, scene)  # takes effect at the next evaluation
             refresh_avatar(obj, scene, depsgraph)
             STATE.errors.pop(obj.session_uid, None)
         except (InputError, OSError, ValueError, KeyError) as exc:

@@ -3,7 +3,9 @@
 The driver is a simple expression (Blender evaluates it without Python, so it runs in files
 whose scripts are not trusted and in background renders): a LOC_DIFF distance `d` between
 the camera and the head's root bone, and `near` / `far` read from custom properties of the
-avatar object, so they can be changed (or animated) without editing the expression.
+avatar object, so they can be changed (or animated) without editing the expression. The
+distance's camera target follows the scene's active camera (`follow_scene_camera`, run by the
+handlers): a camera made active by hand or by a camera marker drives the level of detail.
 """
 
 from __future__ import annotations
@@ -46,3 +48,17 @@ def drive_lod_by_distance(obj, camera, near: float, far: float):
     driver.expression = DRIVER_EXPRESSION
     driver.use_self = False
     return driver
+
+
+def follow_scene_camera(obj, scene) -> bool:
+    """Point the avatar's distance driver at the scene's active camera; True if it moved."""
+    drivers = obj.animation_data.drivers if obj.animation_data else None
+    curve = drivers.find(LOD_PATH) if drivers is not None else None
+    camera = scene.camera
+    if curve is None or camera is None:
+        return False
+    distance = curve.driver.variables.get("d")
+    if distance is None or distance.type != "LOC_DIFF" or distance.targets[0].id == camera:
+        return False
+    distance.targets[0].id = camera
+    return True

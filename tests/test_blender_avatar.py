@@ -178,6 +178,21 @@ def test_lod_driver_by_camera_distance(avatar):
         lod = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).archhead_avatar.lod
         assert lod == pytest.approx(want, abs=1e-5)
         assert len(obj.data.vertices) == _table_count(avatar, want)
+    # another camera made active (by hand or a camera marker) drives it from then on
+    other = bpy.data.objects.new("other_camera", bpy.data.cameras.new("other_camera"))
+    bpy.context.scene.collection.objects.link(other)
+    root = rig.matrix_world @ rig.pose.bones["global"].head
+    other.location = root + Vector((0.0, -1.4, 0.0))
+    bpy.context.scene.camera = other
+    try:
+        for _ in range(2):  # the handler retargets, the next evaluation reads the new camera
+            bpy.context.view_layer.update()
+        lod = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).archhead_avatar.lod
+        assert lod == pytest.approx(0.9, abs=1e-5)
+        assert driver.variables["d"].targets[0].id == other
+    finally:
+        bpy.context.scene.camera = camera
+        bpy.data.objects.remove(other)
     obj.driver_remove("archhead_avatar.lod")
 
 
