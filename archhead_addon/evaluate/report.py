@@ -112,6 +112,16 @@ def write_tables(folder: Path, results: list[LodResult], title: str) -> None:
 
 def plot_error_vs_time(path: Path, results: list[LodResult], title: str) -> None:
     """PSNR and L1 against render time, one line per precision, points labelled by LOD."""
+    series = {
+        precision: [(r.lod, r.render_ms, r.psnr, r.l1) for r in results if r.precision == precision]
+        for precision in ("fp32", "fp16")
+    }
+    plot_psnr_l1_against_ms(path, series, "ms per frame (numpy decode + CPU splat)", title)
+
+
+def plot_psnr_l1_against_ms(path: Path, series: dict, xlabel: str, title: str, labelled=None):
+    """Two panels, PSNR and L1 against milliseconds: `series` maps a precision to its points
+    (lod, ms, psnr, l1); fp32's points are labelled by LOD (those `labelled(lod)` accepts)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -119,17 +129,19 @@ def plot_error_vs_time(path: Path, results: list[LodResult], title: str) -> None
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6), layout="constrained")
     for precision, marker in (("fp32", "o"), ("fp16", "s")):
-        rows = [r for r in results if r.precision == precision]
-        if not rows:
+        points = series.get(precision) or []
+        if not points:
             continue
-        times = [r.render_ms for r in rows]
-        for ax, metric in zip(axes, ("psnr", "l1"), strict=True):
-            ax.plot(times, [getattr(r, metric) for r in rows], marker=marker, label=precision)
-            if precision == "fp32":
-                for r, t in zip(rows, times, strict=True):
+        lods, times, psnrs, l1s = zip(*points, strict=True)
+        for ax, values in zip(axes, (psnrs, l1s), strict=True):
+            ax.plot(times, values, marker=marker, markersize=3, label=precision)
+            if precision != "fp32":
+                continue
+            for lod, t, v in zip(lods, times, values, strict=True):
+                if labelled is None or labelled(lod):
                     ax.annotate(
-                        f"LOD {r.lod:g}",
-                        (t, getattr(r, metric)),
+                        f"LOD {lod:g}",
+                        (t, v),
                         fontsize=7,
                         textcoords="offset points",
                         xytext=(4, 4),
@@ -137,10 +149,11 @@ def plot_error_vs_time(path: Path, results: list[LodResult], title: str) -> None
     axes[0].set_ylabel("test PSNR (dB), higher is better")
     axes[1].set_ylabel("test L1, lower is better")
     for ax in axes:
-        ax.set_xlabel("ms per frame (numpy decode + CPU splat)")
+        ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
         ax.legend()
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(title, fontsize=9)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
     plt.close(fig)

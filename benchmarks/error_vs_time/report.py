@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from archhead_addon.evaluate.lods import LodResult
+from archhead_addon.evaluate.report import plot_psnr_l1_against_ms
 from archhead_addon.io.atomic import atomic_path
 
 from .stability import StabilityRow
@@ -153,33 +154,20 @@ def _save(fig, path: Path) -> None:
 
 def plot_error_vs_time(path: Path, rows: list[LodRow], title: str) -> None:
     """Test PSNR and L1 against one frame's run time (decode + kernel at 512²)."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6), layout="constrained")
-    for precision, marker in (("fp32", "o"), ("fp16", "s")):
-        results = [getattr(r, precision) for r in rows]
-        times = [res.decode_ms + r.kernel_ms for res, r in zip(results, rows, strict=True)]
-        for ax, metric in zip(axes, ("psnr", "l1"), strict=True):
-            values = [getattr(res, metric) for res in results]
-            ax.plot(times, values, marker=marker, markersize=3, label=precision)
-            if precision == "fp32":
-                for res, t, v in zip(results, times, values, strict=True):
-                    if round(res.lod * 4) == res.lod * 4:  # label 0, 0.25, ... only
-                        ax.annotate(
-                            f"l={res.lod:g}",
-                            (t, v),
-                            fontsize=7,
-                            textcoords="offset points",
-                            xytext=(4, 4),
-                        )
-    axes[0].set_ylabel("test PSNR (dB), higher is better")
-    axes[1].set_ylabel("test L1, lower is better")
-    for ax in axes:
-        ax.set_xlabel(f"ms per frame (numpy decode + CPU splat at {KERNEL_SIZE}²)")
-        ax.grid(alpha=0.3)
-        ax.legend()
-    fig.suptitle(title, fontsize=9)
-    _save(fig, path)
-    plt.close(fig)
+    series = {
+        precision: [
+            (res.lod, res.decode_ms + r.kernel_ms, res.psnr, res.l1)
+            for res, r in ((getattr(r, precision), r) for r in rows)
+        ]
+        for precision in ("fp32", "fp16")
+    }
+    plot_psnr_l1_against_ms(
+        path,
+        series,
+        f"ms per frame (numpy decode + CPU splat at {KERNEL_SIZE}²)",
+        title,
+        labelled=lambda lod: round(lod * 4) == lod * 4,  # 0, 0.25, ... only
+    )
 
 
 def plot_smoothness(path: Path, pairs: list[tuple[float, float, float]], title: str) -> None:
