@@ -157,18 +157,14 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
 
     def remember(self) -> None:
         """The fields the user set, for the next time the dialog opens."""
-        names = (*REMEMBERED, *OVERRIDABLE)
-        STATE.dialog_fields[DIALOG_KEY] = {
-            name: getattr(self, name) for name in names if self.properties.is_property_set(name)
-        }
+        STATE.dialog_fields[DIALOG_KEY] = self.fields_set((*REMEMBERED, *OVERRIDABLE))
 
     def overrides(self) -> dict:
         """The fields the user (or a script) set; the rest come from the base config."""
-        return {
-            name: getattr(self, name)
-            for name in OVERRIDABLE
-            if self.properties.is_property_set(name)
-        }
+        return self.fields_set(OVERRIDABLE)
+
+    def fields_set(self, names) -> dict:
+        return {n: getattr(self, n) for n in names if self.properties.is_property_set(n)}
 
     def finish_run(self, context):
         return finish_training(context, self.run)

@@ -124,7 +124,7 @@ def evaluate(args) -> int:
     sheet_rows = sorted({round(i) for i in np.linspace(0, len(frames) - 1, SHEET_ROWS)})
     sheet = {}
 
-    def keep_first(lod, precision, index, rgb):
+    def keep_images(lod, precision, index, rgb):
         if precision != args.precisions[0]:
             return
         if index == 0:
@@ -140,7 +140,7 @@ def evaluate(args) -> int:
         ShiftTolerantLPIPS(),
         args.lods,
         args.precisions,
-        keep_first,
+        keep_images,
     )
     title = (
         f"{args.avatar.name}: {len(frames)} {args.split} frames of {args.data.name}, "

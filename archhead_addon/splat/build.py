@@ -87,10 +87,15 @@ def cache_lib_path(compiler: str) -> Path:
     return cache_dir() / "kernel" / source_hash(compiler)[:16] / LIB_NAME
 
 
+def _package_library_usable() -> bool:
+    """The package's own build is current, or there are no sources to compare it with."""
+    return is_current() or (LIB_PATH.exists() and not SOURCE_DIR.exists())
+
+
 def ensure_library(verbose: bool = True) -> Path:
     """The library for the current sources: the package's when current, else the cache's,
     compiled there on first use. Raises BuildError (what to install) without a compiler."""
-    if is_current() or (LIB_PATH.exists() and not SOURCE_DIR.exists()):
+    if _package_library_usable():
         return LIB_PATH
     compiler = find_compiler()
     path = cache_lib_path(compiler)
@@ -108,7 +113,7 @@ def ensure_library(verbose: bool = True) -> Path:
 def unavailable_reason() -> str | None:
     """None when the kernel is built for these sources or can be compiled on first use, else
     why not (without compiling anything: Blender asks this while it starts)."""
-    if is_current() or (LIB_PATH.exists() and not SOURCE_DIR.exists()):
+    if _package_library_usable():
         return None
     try:
         path = cache_lib_path(find_compiler())
