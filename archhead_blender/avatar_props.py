@@ -88,9 +88,31 @@ class ArchHeadAvatarSettings(bpy.types.PropertyGroup):
     view_dependent: bpy.props.BoolProperty(
         update=_tag,
         name="View-dependent colour",
-        default=False,
-        description="Evaluate the full spherical harmonics towards the scene camera each "
-        "frame (otherwise the view-independent DC colour)",
+        default=True,
+        description="For avatars with spherical-harmonic colour: evaluate it towards the "
+        "scene camera each frame, as the exact splat render does (off: the DC colour alone, "
+        "decoded and cached without the higher bands). Avatars with one colour per Gaussian "
+        "look the same either way",
+    )
+    cull: bpy.props.EnumProperty(
+        update=_tag,
+        name="Cull to camera",
+        default="RENDER",
+        description="Leave out, before decoding, the Gaussians the scene camera cannot see",
+        items=(
+            ("OFF", "Off", "Decode and draw every Gaussian"),
+            (
+                "RENDER",
+                "Renders",
+                "Cull in renders (F12, batch, exact splat); the viewport shows the whole "
+                "avatar, to orbit around",
+            ),
+            (
+                "ALWAYS",
+                "Always",
+                "Cull in the viewport too (for looking through the camera)",
+            ),
+        ),
     )
     disk_cache: bpy.props.BoolProperty(
         update=_tag,

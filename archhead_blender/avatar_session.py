@@ -17,6 +17,7 @@ import bpy
 import numpy as np
 
 from archhead_addon.avatar.checkpoint_format import read_checkpoint
+from archhead_addon.avatar.culling import ViewFrustum
 from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.avatar.runtime import AvatarRuntime
@@ -64,8 +65,11 @@ class AvatarSession:
             ckpt = replace(ckpt, identity_shape=identity)
         self.runtime = AvatarRuntime(ckpt, base_model(flame_model_path()), path)
         self.n_expr = ckpt.config.n_expr
+        # The SH bands the display shows: all with view-dependent colour, else the DC term
+        # alone (the others are neither decoded nor cached).
+        self.sh_degree = ckpt.config.sh_degree if settings.view_dependent else 0
         self.joint_dirs = expression_joint_dirs(self.runtime.mesh, self.runtime.mesh.n_expr)
-        h = hashlib.sha1(f"{file_digest(path)}/{PRECISION}/".encode())
+        h = hashlib.sha1(f"{file_digest(path)}/{PRECISION}/{self.sh_degree}/".encode())
         h.update(np.ascontiguousarray(ckpt.identity_shape, np.float32).tobytes())
         self.digest = h.hexdigest()
         self.memory = MemoryCache(settings.memory_mb << 20)
@@ -74,12 +78,16 @@ class AvatarSession:
         self.shown: tuple | None = None  # what the point object holds now
         self.lod_override: float | None = None  # batch renders fix the level of detail
 
-    def key(self, codes: FrameCodes, lod: float) -> str:
-        return frame_key(self.digest, codes.digest(), resolution_for_lod(lod)[0])
+    def key(self, codes: FrameCodes, lod: float, view: ViewFrustum | None = None) -> str:
+        digest = codes.digest() if view is None else f"{codes.digest()}/{view.key()}"
+        return frame_key(self.digest, digest, resolution_for_lod(lod)[0])
 
-    def frame(self, codes: FrameCodes, lod: float) -> tuple[str, SplatFrame]:
-        """(key, Gaussians) from memory, the disk cache or a fresh decode."""
-        key = self.key(codes, lod)
+    def frame(
+        self, codes: FrameCodes, lod: float, view: ViewFrustum | None = None
+    ) -> tuple[str, SplatFrame]:
+        """(key, Gaussians) from memory, the disk cache or a fresh decode; `view` culls to
+        a camera (a culled frame is cached under that camera)."""
+        key = self.key(codes, lod, view)
         splat = self.memory.get(key)
         if splat is None and self.disk is not None:
             splat = self.disk.get(key)
@@ -87,7 +95,11 @@ class AvatarSession:
             kwargs = codes.as_kwargs()
             kwargs["expr"] = kwargs["expr"][: self.n_expr]
             gaussians = self.runtime.decode(
-                resolution_for_lod(lod)[0], precision=PRECISION, **kwargs
+                resolution_for_lod(lod)[0],
+                precision=PRECISION,
+                sh_degree=self.sh_degree,
+                view=view,
+                **kwargs,
             )
             splat = SplatFrame.from_gaussians(gaussians)
             if self.disk is not None:
@@ -107,6 +119,7 @@ def _source(obj) -> tuple:
         s.disk_cache,
         bpy.path.abspath(s.cache_dir),
         s.memory_mb,
+        s.view_dependent,
     )
 
 

@@ -14,7 +14,6 @@ import bpy
 import numpy as np
 
 from archhead_addon.avatar.frame_selection import contiguous_runs
-from archhead_addon.camera import BlenderCamera
 from archhead_addon.export.transform import transform_frame
 from archhead_addon.io.atomic import write_bytes_atomic
 from archhead_addon.splat.blender_render import render_from_blender_camera
@@ -26,30 +25,11 @@ from .avatar_props import is_avatar
 from .avatar_session import session
 from .decoding import decode_frames
 from .handlers import frame_to_show
+from .scene_state import blender_camera
 
 
 def scene_avatars(scene) -> list:
     return [obj for obj in scene.objects if is_avatar(obj)]
-
-
-def blender_camera(scene) -> BlenderCamera:
-    """The scene camera's projection settings at the current frame."""
-    if scene.camera is None or scene.camera.type != "CAMERA" or scene.camera.data.type != "PERSP":
-        raise ValueError("exact splat renders need a perspective scene camera")
-    data, r = scene.camera.data, scene.render
-    scale = r.resolution_percentage / 100.0
-    return BlenderCamera(
-        lens=data.lens,
-        sensor_width=data.sensor_width,
-        shift_x=data.shift_x,
-        shift_y=data.shift_y,
-        resolution_x=round(r.resolution_x * scale),
-        resolution_y=round(r.resolution_y * scale),
-        pixel_aspect_x=r.pixel_aspect_x,
-        pixel_aspect_y=r.pixel_aspect_y,
-        sensor_fit=data.sensor_fit,
-        sensor_height=data.sensor_height,
-    )
 
 
 @contextmanager
@@ -111,7 +91,7 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
     depsgraph = context.evaluated_depsgraph_get()
     parts = []
     for obj in avatars:  # every avatar in Blender's world space, then one image of them all
-        _, splat = frame_to_show(obj, scene, depsgraph)
+        _, splat = frame_to_show(obj, scene, depsgraph, culled=True)
         parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
     camera = blender_camera(scene)
     raster = render_from_blender_camera(

@@ -26,7 +26,7 @@ from .avatar_props import is_avatar
 from .avatar_session import forget_shown, prune_sessions, session
 from .lod_driver import follow_scene_camera
 from .point_instances import write_points
-from .scene_state import avatar_lod, camera_in_object, frame_codes
+from .scene_state import avatar_lod, camera_frustum, camera_in_object, frame_codes
 from .state import STATE, reset
 
 
@@ -39,28 +39,36 @@ def resume() -> None:
     STATE.suspended = max(STATE.suspended - 1, 0)
 
 
-def frame_to_show(obj, scene, depsgraph) -> tuple[str, SplatFrame]:
+def frame_to_show(obj, scene, depsgraph, culled: bool = False) -> tuple[str, SplatFrame]:
     """(cache key, Gaussians) the avatar shows at the scene's frame: the codes and level of
-    detail there, or with "Hold" between decoded frames, the last decoded frame's."""
+    detail there, or with "Hold" between decoded frames, the last decoded frame's; `culled`
+    leaves out what the scene camera cannot see (archhead_addon.avatar.culling)."""
     avatar = session(obj)
     settings = obj.archhead_avatar
+    view = camera_frustum(obj, scene, depsgraph) if culled else None
     frame = scene.frame_current
     if settings.between == "HOLD" and frame not in avatar.decoded:
         held = held_frame(sorted(avatar.decoded), frame)
         if held is not None:
             record = avatar.decoded[held]
-            return avatar.frame(record.codes, record.lod)
+            return avatar.frame(record.codes, record.lod, view)
     codes = frame_codes(settings.head, depsgraph, avatar.joint_dirs)
     lod = avatar.lod_override if avatar.lod_override is not None else avatar_lod(obj, depsgraph)
-    return avatar.frame(codes, lod)
+    return avatar.frame(codes, lod, view)
+
+
+def culls(obj, depsgraph) -> bool:
+    """Whether the avatar is culled to the scene camera in this evaluation."""
+    mode = obj.archhead_avatar.cull
+    return mode == "ALWAYS" or (mode == "RENDER" and depsgraph.mode == "RENDER")
 
 
 def refresh_avatar(obj, scene, depsgraph) -> bool:
     """Bring one avatar's points up to date; True if they were rewritten."""
     avatar = session(obj)
-    key, splat = frame_to_show(obj, scene, depsgraph)
+    key, splat = frame_to_show(obj, scene, depsgraph, culls(obj, depsgraph))
     view_from = None
-    if obj.archhead_avatar.view_dependent:
+    if avatar.sh_degree > 0:  # view-dependent colour on an avatar that has it
         view_from = camera_in_object(obj, scene, depsgraph)
     state = (key, None if view_from is None else tuple(view_from.round(6)))
     if state == avatar.shown:

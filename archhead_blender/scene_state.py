@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from archhead_addon.avatar.culling import ViewFrustum
 from archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
+from archhead_addon.camera import BlenderCamera
+from archhead_addon.splat.blender_render import blender_camera_to_opencv
 from archhead_addon.flame.model import JOINT_NAMES
 
 
@@ -59,6 +62,42 @@ def camera_in_object(obj, scene, depsgraph):
     camera = np.array(scene.camera.evaluated_get(depsgraph).matrix_world)
     world = np.array(obj.evaluated_get(depsgraph).matrix_world)
     return (np.linalg.inv(world) @ camera[:, 3])[:3]
+
+
+def blender_camera(scene) -> BlenderCamera:
+    """The scene camera's projection settings at the current frame."""
+    if scene.camera is None or scene.camera.type != "CAMERA" or scene.camera.data.type != "PERSP":
+        raise ValueError("exact splat renders need a perspective scene camera")
+    data, r = scene.camera.data, scene.render
+    scale = r.resolution_percentage / 100.0
+    return BlenderCamera(
+        lens=data.lens,
+        sensor_width=data.sensor_width,
+        shift_x=data.shift_x,
+        shift_y=data.shift_y,
+        resolution_x=round(r.resolution_x * scale),
+        resolution_y=round(r.resolution_y * scale),
+        pixel_aspect_x=r.pixel_aspect_x,
+        pixel_aspect_y=r.pixel_aspect_y,
+        sensor_fit=data.sensor_fit,
+        sensor_height=data.sensor_height,
+    )
+
+
+def camera_frustum(obj, scene, depsgraph) -> ViewFrustum | None:
+    """The scene camera's view volume in the object's own space (FLAME space), or None where
+    there is no perspective camera to cull to."""
+    camera = scene.camera
+    if camera is None or camera.type != "CAMERA" or camera.data.type != "PERSP":
+        return None
+    settings = blender_camera(scene)
+    viewmat, K = blender_camera_to_opencv(
+        settings,
+        np.array(camera.evaluated_get(depsgraph).matrix_world),
+        np.array(obj.evaluated_get(depsgraph).matrix_world),
+    )
+    near = camera.data.clip_start
+    return ViewFrustum.from_camera(viewmat, K, settings.resolution_x, settings.resolution_y, near)
 
 
 def _fcurves(id_data):

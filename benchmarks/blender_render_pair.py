@@ -2,12 +2,14 @@
 the same Gaussians from the same camera (the pictures and PSNR in docs/blender_avatar.md).
 
     .venv/bin/python benchmarks/blender_render_pair.py --out docs/ [--size 256]
-        [--samples 64] [--eevee]
+        [--samples 64] [--eevee] [--avatar RUN/avatar.npz --sequence DIR/tracking.npz]
+        [--frame 12] [--name avatar_cycles_vs_splat]
 
-The avatar is an untrained one of the built-in model (its initialisation, seed 0), on the demo
-head at frame 12, view-dependent colour on, at LOD 0 and LOD 1. Each row: Blender's render,
-the exact splat render, and their absolute difference x4, all over the same grey. Both
-renders go through the batch path (archhead_blender/batch_render.py) that the command line uses.
+The avatar is a trained checkpoint driven by a tracked sequence (its own, for the faithfulness
+check), or without --avatar an untrained one of the built-in model on the demo head. Blender's
+default display settings, at LOD 0, 0.5 and 1; each row: Blender's render, the exact splat
+render, and their absolute difference x4, all over the same grey. Both renders go through the
+batch path (archhead_blender/batch_render.py) that the command line uses.
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ def main(argv) -> None:
     parser.add_argument("--size", type=int, default=256)
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--eevee", action="store_true", help="add EEVEE (slow without a GPU)")
+    parser.add_argument("--avatar", type=Path, help="trained avatar (default: untrained)")
+    parser.add_argument("--sequence", type=Path, help="tracked sequence that drives it")
+    parser.add_argument("--frame", type=int, default=FRAME)
+    parser.add_argument("--name", help="picture name (.png added)")
     args = parser.parse_args(argv)
 
     import torch
@@ -55,17 +61,30 @@ def main(argv) -> None:
 
     api.enable_addon()
     folder = Path(tempfile.mkdtemp(prefix="archhead_pair_"))
-    torch.manual_seed(0)
-    save_avatar(folder / "avatar.npz", ArchHeadAvatar.create(load_model()))
+    avatar = args.avatar
+    if avatar is None:
+        torch.manual_seed(0)
+        avatar = folder / "avatar.npz"
+        save_avatar(avatar, ArchHeadAvatar.create(load_model()))
+    sequence = args.sequence
+    if sequence is None:
+        sequence = folder / "demo.npz"
+        write_canonical(
+            demo_sequence(frames=args.frame + 1, image_size=(args.size, args.size)), sequence
+        )
     bpy.ops.wm.read_homefile(use_empty=True)
-    write_canonical(
-        demo_sequence(frames=FRAME + 1, image_size=(args.size, args.size)), folder / "demo.npz"
-    )
-    bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
-    bpy.context.view_layer.objects.active = bpy.data.objects["demo"]
-    bpy.ops.archhead.load_avatar(filepath=str(folder / "avatar.npz"))
-    bpy.data.objects["demo_avatar"].archhead_avatar.view_dependent = True
+    bpy.ops.archhead.import_sequence(filepath=str(sequence))
+    head = bpy.context.view_layer.objects.active
+    bpy.ops.archhead.load_avatar(filepath=str(avatar))
     scene = bpy.context.scene
+    size = scene.render
+    scale = args.size / max(size.resolution_x, size.resolution_y)
+    size.resolution_x, size.resolution_y = (
+        round(size.resolution_x * scale),
+        round(size.resolution_y * scale),
+    )
+    size.resolution_percentage = 100
+    print(f"{avatar} on {head.name}, frame {args.frame}, {size.resolution_x}x{size.resolution_y}")
     r = scene.render
     r.film_transparent, r.threads_mode, r.threads = True, "FIXED", 2
     r.image_settings.file_format, r.image_settings.color_mode = "PNG", "RGBA"
@@ -77,17 +96,19 @@ def main(argv) -> None:
 
     engines = ["CYCLES"] + (["BLENDER_EEVEE"] if args.eevee else [])
     rows = []
-    for lod in (0.0, 1.0):
+    for lod in (0.0, 0.5, 1.0):
         watch = api.Stopwatch()
         (exact_path,) = api.render_frames(
-            bpy.context, [FRAME], folder / f"exact_{lod:g}", lod=lod, exact=True
+            bpy.context, [args.frame], folder / f"exact_{lod:g}", lod=lod, exact=True
         )
         exact = _over_grey(api.read_image(exact_path))
         print(f"LOD {lod:g}: exact splat {watch.seconds:.1f} s")
         for engine in engines:
             r.engine = engine
             watch = api.Stopwatch()
-            (path,) = api.render_frames(bpy.context, [FRAME], folder / f"{engine}_{lod:g}", lod=lod)
+            (path,) = api.render_frames(
+                bpy.context, [args.frame], folder / f"{engine}_{lod:g}", lod=lod
+            )
             image = _over_grey(api.read_image(path))
             print(
                 f"LOD {lod:g}: {engine} {watch.seconds:.1f} s, "
@@ -97,7 +118,10 @@ def main(argv) -> None:
                 np.concatenate([image, exact, np.clip(4 * np.abs(image - exact), 0, 1)], axis=1)
             )
     picture = np.concatenate(rows, axis=0)
-    name = "avatar_cycles_vs_splat.png" if len(engines) == 1 else "avatar_engines_vs_splat.png"
+    name = args.name or (
+        "avatar_cycles_vs_splat" if len(engines) == 1 else "avatar_engines_vs_splat"
+    )
+    name += ".png"
     write_bytes_atomic(args.out / name, encode_png(np.round(picture * 255).astype(np.uint8)))
     print(f"wrote {args.out / name}")
 

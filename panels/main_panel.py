@@ -76,6 +76,7 @@ def _draw_avatar(layout, context, head):
         row.operator("archhead.cancel_decode", text="", icon="CANCEL")
     col = box.column(align=True)
     col.prop(settings, "view_dependent")
+    col.prop(settings, "cull")
     col.prop(settings, "identity")
     col.prop(settings, "disk_cache")
     if settings.disk_cache:

@@ -2,6 +2,7 @@
 
 import copy
 import io
+import json
 
 import numpy as np
 import pytest
@@ -71,8 +72,27 @@ def test_untrained_avatar_starts_as_a_sane_surface():
         opacity = torch.sigmoid(g.opacity_logits)
         assert 0.15 < opacity.min() and opacity.max() < 0.25
         rgb = 0.5 + SH_C0 * g.sh[:, 0]
-        assert (rgb - 0.5).abs().max() < 0.05 and g.sh[:, 1:].abs().max() < 0.05
-        assert g.sh.shape == (len(g), 16, 3) and g.uv_texel.dtype == torch.int64
+        assert (rgb - 0.5).abs().max() < 0.05
+        assert g.sh.shape == (len(g), avatar.config.sh_coeffs, 3)
+        assert g.uv_texel.dtype == torch.int64
+
+
+def test_sh_degree_sets_the_colour_head_and_old_checkpoints_read_as_degree_3():
+    """Degree 0 (the default) gives one RGB per Gaussian; degree 3 the 16 coefficients, the
+    higher bands starting near zero. A config written before the field existed is degree 3."""
+    for degree in (0, 1, 3):
+        config = AvatarConfig(n_expr=sphere_head().n_expr, sh_degree=degree)
+        avatar = make_avatar(config, random_weights=False)
+        with torch.no_grad():
+            g = avatar(0.0, **frame_codes())
+        assert g.sh.shape == (len(g), (degree + 1) ** 2, 3)
+        assert degree == 0 or g.sh[:, 1:].abs().max() < 0.05
+    assert AvatarConfig().sh_degree == 0
+    old = json.loads(AvatarConfig().to_json())
+    del old["sh_degree"]
+    assert AvatarConfig.from_json(json.dumps(old)).sh_degree == 3
+    with pytest.raises(ValueError, match="sh_degree"):
+        AvatarConfig(sh_degree=4)
 
 
 def test_global_rotation_and_translation_move_the_head_rigidly():

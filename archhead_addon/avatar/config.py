@@ -10,9 +10,12 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields, replace
 
-SH_DEGREE = 3
-# the five decoder heads and their raw output widths, in decoding order
-HEADS = {"offset": 3, "scale": 3, "rotation": 4, "opacity": 1, "colour": 3 * (SH_DEGREE + 1) ** 2}
+# the five decoder heads, in decoding order, and the raw output widths of the first four (the
+# colour head's depends on the SH degree: AvatarConfig.head_outputs)
+HEADS = ("offset", "scale", "rotation", "opacity", "colour")
+FIXED_OUTPUTS = {"offset": 3, "scale": 3, "rotation": 4, "opacity": 1}
+# Checkpoints written before the colour's degree became a field hold degree-3 SH.
+LEGACY_SH_DEGREE = 3
 JAW_DIM, EYES_DIM = 3, 6
 QUAT_EPS = 1e-8  # below this norm a raw quaternion is replaced by the identity
 
@@ -37,6 +40,11 @@ class AvatarConfig:
     init_opacity: float = 0.2
     init_rgb: tuple[float, float, float] = (0.5, 0.5, 0.5)
     pe_centre: tuple[float, float, float] = (0.0, 0.0, 0.0)  # head centre, metres
+    # Colour as SH of this degree (0 = one RGB per Gaussian, 3 = 3DGS's 16 coefficients).
+    # 0 by default: with one fixed training camera the higher bands do not learn view
+    # dependence but extra colour, which a display that shows the DC term loses
+    # (docs/training.md, "Colour").
+    sh_degree: int = 0
 
     def __post_init__(self):
         _check_types_and_limits(self)
@@ -50,10 +58,11 @@ class AvatarConfig:
             or self.log_scale_min >= self.log_scale_max
             or min(self.hidden, self.colour_hidden, self.feature_dim, self.drive_dim) < 1
             or self.pe_freqs < 0
+            or not 0 <= self.sh_degree <= 3
         ):
             raise ValueError(
-                "need tau > 0, head_layers >= 1, positive widths, pe_freqs >= 0 "
-                "and log_scale_min < log_scale_max"
+                "need tau > 0, head_layers >= 1, positive widths, pe_freqs >= 0, "
+                "sh_degree in 0..3 and log_scale_min < log_scale_max"
             )
 
     @property
@@ -65,6 +74,14 @@ class AvatarConfig:
     def in_dim(self) -> int:
         """Decoder input per texel: PE (75) | feature (64, if any) | drive (K) | l."""
         return self.pe_dim + (self.feature_dim if self.levels else 0) + self.drive_dim + 1
+
+    @property
+    def sh_coeffs(self) -> int:
+        return (self.sh_degree + 1) ** 2
+
+    def head_outputs(self) -> dict[str, int]:
+        """Each head's raw output width, in HEADS order."""
+        return {**FIXED_OUTPUTS, "colour": 3 * self.sh_coeffs}
 
     def head_width(self, name: str) -> int:
         return self.colour_hidden if name == "colour" else self.hidden
@@ -97,6 +114,7 @@ class AvatarConfig:
         known = {f.name for f in fields(cls)}
         if set(data) - known:
             raise ValueError(f"unknown config fields {sorted(set(data) - known)}")
+        data.setdefault("sh_degree", LEGACY_SH_DEGREE)
         for key in ("levels", "init_rgb", "pe_centre"):
             if key in data:
                 data[key] = tuple(data[key])
@@ -177,7 +195,7 @@ def parameter_shapes(config: AvatarConfig) -> dict[str, tuple[int, ...]]:
     shapes["mapping.2.bias"] = (config.drive_dim,)
     shapes["decoder.first.weight"] = (config.fused_width, config.in_dim)
     shapes["decoder.first.bias"] = (config.fused_width,)
-    for name, width in HEADS.items():
+    for name, width in config.head_outputs().items():
         h = config.head_width(name)
         for i in range(config.head_layers - 1):
             shapes[f"decoder.heads.{name}.hidden.{i}.weight"] = (h, h)

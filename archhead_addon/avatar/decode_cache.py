@@ -97,7 +97,8 @@ class DiskCache:
         save_npz_atomic(self.path(key), **with_checksum(arrays))
 
 
-_WIDTHS = {"means": (3,), "log_scales": (3,), "quats": (4,), "opacity_logits": (), "sh": (16, 3)}
+_WIDTHS = {"means": (3,), "log_scales": (3,), "quats": (4,), "opacity_logits": (), "sh": None}
+SH_WIDTHS = {(k, 3) for k in (1, 4, 9, 16)}  # SH degree 0..3
 MAX_FRAME_BYTES = 1 << 30  # a frame of 60,000 Gaussians is 15 MB
 
 
@@ -111,8 +112,12 @@ def read_frame(path) -> SplatFrame:
     n = None
     for name, width in _WIDTHS.items():
         value = arrays.get(name)
-        if value is None or value.dtype != np.float32 or value.shape[1:] != width:
-            raise InputError(path, name, f"missing or not float32 (N, {width})")
+        ok_width = value is not None and (
+            value.shape[1:] in SH_WIDTHS if width is None else value.shape[1:] == width
+        )
+        if not ok_width or value.dtype != np.float32:
+            expected = "(N, K, 3), K = 1, 4, 9 or 16" if width is None else f"(N, {width})"
+            raise InputError(path, name, f"missing or not float32 {expected}")
         n = len(value) if n is None else n
         if len(value) != n:
             raise InputError(path, name, f"{len(value)} rows, 'means' has {n}")

@@ -49,7 +49,7 @@ from ..flame.model import FlameModel
 from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
 from ..uv.layout import avatar_mesh
 from ..uv.raster import UVRaster, face_texel_scale, position_map
-from .config import HEADS, QUAT_EPS, AvatarConfig
+from .config import QUAT_EPS, AvatarConfig
 from .gaussians import SH_C0, Gaussians, quat_multiply
 from .lod import blend_weights, resolution_for_lod
 
@@ -80,7 +80,7 @@ class Decoder(nn.Module):
         self.heads = nn.ModuleDict(
             {
                 name: _Head(config.head_width(name), config.head_layers - 1, width)
-                for name, width in HEADS.items()
+                for name, width in config.head_outputs().items()
             }
         )
 
@@ -148,7 +148,7 @@ class ArchHeadAvatar(nn.Module):
             "rotation": [1.0, 0.0, 0.0, 0.0],
             "opacity": [math.log(self.config.init_opacity / (1 - self.config.init_opacity))],
         }
-        colour = torch.zeros(HEADS["colour"])
+        colour = torch.zeros(self.config.head_outputs()["colour"])
         colour[:3] = (torch.tensor(self.config.init_rgb) - 0.5) / SH_C0
         with torch.no_grad():
             for name, head in self.decoder.heads.items():

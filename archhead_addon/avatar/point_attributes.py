@@ -30,7 +30,7 @@ def _rgba(rgb: np.ndarray) -> np.ndarray:
 def point_attributes(frame: SplatFrame, view_from=None) -> dict[str, np.ndarray]:
     """Arrays per point: position (N,3), scale (N,3) standard deviations, rotation (N,4)
     w,x,y,z, opacity (N,), colour (N,4) and, with `view_from` (a camera centre in the
-    frame's FLAME space), colour_view (N,4)."""
+    frame's FLAME space) and SH above degree 0, colour_view (N,4)."""
     out = {
         "position": frame.means,
         "scale": np.exp(frame.log_scales, dtype=np.float32),
@@ -38,7 +38,7 @@ def point_attributes(frame: SplatFrame, view_from=None) -> dict[str, np.ndarray]
         "opacity": (1.0 / (1.0 + np.exp(-frame.opacity_logits))).astype(np.float32),
         "colour": _rgba(np.maximum(0.5 + SH_C0 * frame.sh[:, 0], 0.0)),
     }
-    if view_from is not None:
+    if view_from is not None and frame.sh.shape[1] > 1:  # one coefficient: `colour` is all
         dirs = frame.means - np.asarray(view_from, np.float32)
         rgb = sh_to_rgb_numpy(degree_from_coeffs(frame.sh.shape[1]), dirs, frame.sh)
         out["colour_view"] = _rgba(rgb)

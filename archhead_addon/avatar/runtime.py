@@ -27,6 +27,7 @@ from ..uv.raster import UVRaster, face_texel_scale
 from .bicubic import resize
 from .checkpoint_format import AvatarCheckpoint, checkpoint_mesh, read_checkpoint
 from .config import EYES_DIM, HEADS, JAW_DIM, QUAT_EPS
+from .culling import ViewFrustum, reach
 from .gaussians import Gaussians, quat_multiply
 from .lod import blend_weights, resolution_for_lod
 
@@ -96,11 +97,19 @@ class AvatarRuntime:
         rotation=None,
         translation=None,
         precision: str = "fp32",
+        sh_degree: int | None = None,
+        view: ViewFrustum | None = None,
     ) -> Gaussians:
-        """Gaussians of one frame (numpy arrays). Codes are 1-D; absent ones are zero."""
+        """Gaussians of one frame (numpy arrays). Codes are 1-D; absent ones are zero.
+        `sh_degree` below the avatar's decodes only those bands (a display that shows the
+        DC colour asks for 0: the other rows of the colour head are never computed).
+        `view` leaves out the texels that camera cannot see (culling.py) before decoding."""
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         cfg, net = self.config, self._nets[precision]
+        degree = cfg.sh_degree if sh_degree is None else min(int(sh_degree), cfg.sh_degree)
+        if degree < 0:
+            raise ValueError(f"sh_degree must be >= 0, got {sh_degree}")
         l, size = resolution_for_lod(lod, cfg.s_max, cfg.s_min)
         level = self.level(size, precision)
         expr = None if expr is None else _code(expr, len(np.ravel(expr)), "expr")
@@ -112,8 +121,18 @@ class AvatarRuntime:
             jaw=_code(jaw, JAW_DIM, "jaw"),
             eyes=_code(eyes, EYES_DIM, "eyes"),
         )
+        rot = _code(rotation, 3, "rotation")
+        rot_m = axis_angle_to_matrix(rot).astype(F32)
+        j0 = head.joints[0, 0].astype(F32)[:, None]
+        shift = j0 + _code(translation, 3, "translation").astype(F32)[:, None]
         # channel-major (3, N) from here on: every row a contiguous attribute
         pos = np.einsum("nk,nkc->cn", level["bary"], head.vertices[0][level["vert_idx"]])
+        if view is not None:
+            if "reach" not in level:
+                level["reach"] = self._reach(l, precision)
+            keep = np.flatnonzero(view.visible(rot_m @ (pos - j0) + shift, level["reach"]))
+            level = {k: a[..., keep] if k in _CHANNEL_MAJOR else a[keep] for k, a in level.items()}
+            pos = pos[:, keep]
         drive_in = np.concatenate(
             [
                 _code(expr, cfg.n_expr, "expr", pad=True),
@@ -121,13 +140,15 @@ class AvatarRuntime:
                 _code(eyes, EYES_DIM, "eyes"),
             ]
         )
-        raw = net.decode(self._encode(pos), level.get("first"), net.frame_bias(drive_in, l))
+        raw = net.decode(
+            self._encode(pos),
+            level.get("first"),
+            net.frame_bias(drive_in, l),
+            colour_rows=3 * (degree + 1) ** 2,
+        )
 
         offsets = F32(cfg.offset_unit) * raw["offset"]
-        rot = _code(rotation, 3, "rotation")
-        j0 = head.joints[0, 0].astype(F32)[:, None]
-        means = axis_angle_to_matrix(rot).astype(F32) @ (pos + offsets - j0)
-        means += j0 + _code(translation, 3, "translation").astype(F32)[:, None]
+        means = rot_m @ (pos + offsets - j0) + shift
         q = raw["rotation"]
         norm = np.sqrt(np.einsum("in,in->n", q, q))
         q = np.where(norm > QUAT_EPS, q / np.maximum(norm, QUAT_EPS), F32([[1], [0], [0], [0]]))
@@ -145,6 +166,13 @@ class AvatarRuntime:
             uv_texel=level["texel"],
             resolution=size,
         )
+
+    def _reach(self, lod: float, precision: str) -> np.ndarray:
+        """How far each texel's Gaussian reaches from its surface point (culling.reach), from
+        the neutral frame at this level: offsets model mostly static shape (hair on a
+        real subject lies up to 10 cm off the head), which expressions move little."""
+        g = self.decode(lod, precision=precision)
+        return reach(g.offsets, g.log_scales)
 
     def _encode(self, pos: np.ndarray) -> np.ndarray:
         """(pe_dim + 1, N) float32 from positions (3, N): p, sin(2^k p), cos(2^k p) (k-major,
@@ -232,11 +260,17 @@ class _Network:
         drive = self.round(np.tanh(w1 @ self.round(hidden) + b1))
         return self.round(self.w_drive @ drive + F32(lod) * self.w_lod + self.b_first)
 
-    def decode(self, pe: np.ndarray, first, frame_bias: np.ndarray) -> dict[str, np.ndarray]:
-        """Raw head outputs, (width, N) each, from the PE (pe_dim + 1, N)."""
+    def decode(
+        self, pe: np.ndarray, first, frame_bias: np.ndarray, colour_rows: int
+    ) -> dict[str, np.ndarray]:
+        """Raw head outputs, (width, N) each, from the PE (pe_dim + 1, N); the colour head's
+        first `colour_rows` outputs only (its SH coefficients are coefficient-major)."""
         n = pe.shape[1]
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
-        out = {name: np.empty((head[1][0].shape[0], n), F32) for name, head in self.layers.items()}
+        layers = dict(self.layers)
+        hidden, (w_out, b_out) = layers["colour"]
+        layers["colour"] = (hidden, (w_out[:colour_rows], b_out[:colour_rows]))
+        out = {name: np.empty((head[1][0].shape[0], n), F32) for name, head in layers.items()}
         for s in range(0, n, CHUNK):
             cols = slice(s, min(s + CHUNK, n))
             h = w_in @ self.round(pe[:, cols])
@@ -244,7 +278,7 @@ class _Network:
                 h += first[:, cols]
             _relu_(h)
             h = self.round(h)
-            for name, (hidden, (w_out, b_out)) in self.layers.items():
+            for name, (hidden, (w_out, b_out)) in layers.items():
                 x = h[self.slices[name]]
                 for w, b in hidden:
                     x = w @ x
@@ -255,6 +289,9 @@ class _Network:
                 np.matmul(w_out, x, out=y)
                 y += b_out
         return {name: self.round(y) for name, y in out.items()}
+
+
+_CHANNEL_MAJOR = ("first", "base_log_scale")  # level arrays indexed (..., texel)
 
 
 def _relu_(x: np.ndarray) -> None:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..avatar.culling import ViewFrustum
 from ..avatar.runtime import AvatarRuntime
 from ..splat import kernel
 from ..splat.sh import degree_from_coeffs, sh_to_rgb_numpy
@@ -37,12 +38,13 @@ def render_frame(
     background,
     precision: str = "fp32",
     num_threads: int = 0,
+    view: ViewFrustum | None = None,
 ) -> RenderedFrame:
     """One frame at level `lod`: codes (DRIVING_CODES, others ignored), K (3,3) and OpenCV
-    w2c (4,4) for an image of size (H, W)."""
+    w2c (4,4) for an image of size (H, W); `view` culls before decoding (culling.py)."""
     watch = Stopwatch()
     g = runtime.decode(
-        lod, precision=precision, **{k: codes[k] for k in DRIVING_CODES if k in codes}
+        lod, precision=precision, view=view, **{k: codes[k] for k in DRIVING_CODES if k in codes}
     )
     decode_ms = 1e3 * watch.seconds
     watch = Stopwatch()

@@ -98,8 +98,10 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def stage2_lods(n: int, u) -> list[float]:
+def stage2_lods(n: int, u, scheme: str = "ends") -> list[float]:
     """The levels of a stage-2 step (module docstring) from n uniform numbers u in [0, 1)."""
+    if scheme == "stratified":
+        return [float((k + u[k]) / n) for k in range(n)]
     if n == 1:
         return [float(u[0])]
     return [0.0] + [float((k + u[k]) / (n - 2)) for k in range(n - 2)] + [1.0]
@@ -195,7 +197,8 @@ class Trainer:
         if self.config.stage(step) == 1:
             return [0.0]
         n = self.config.lods_per_step
-        return stage2_lods(n, np.random.default_rng([self.config.seed, 1 << 20, step]).random(n))
+        u = np.random.default_rng([self.config.seed, 1 << 20, step]).random(n)
+        return stage2_lods(n, u, self.config.level_sampling)
 
     def learning_rate_factor(self, step: int) -> float:
         """1 at the start of each stage, decaying exponentially to lr_final_ratio at its end."""
