@@ -11,8 +11,8 @@ import numpy as np
 from archhead_addon.avatar.culling import ViewFrustum
 from archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
 from archhead_addon.camera import BlenderCamera
-from archhead_addon.splat.blender_render import blender_camera_to_opencv
 from archhead_addon.flame.model import JOINT_NAMES
+from archhead_addon.splat.blender_render import blender_camera_to_opencv
 
 
 def head_rig(head):

@@ -6,14 +6,15 @@ rendered with and without it, from the tracked camera and from a close-up.
 
 Cameras: "tracked" is each test frame's own camera; a close-up is that camera moved along its
 axis until the head centre (the mean of its Gaussians) is `--close` metres away, same lens
-(0.45 m: where the LOD driver's default reaches LOD 0). Per camera and level: Gaussians decoded without culling
-and the share culled; decode ms (median, 2 threads, measured
-in one run); and the PSNR of the culled render against the unculled one.
+(0.45 m: where the LOD driver's default reaches LOD 0). Per camera and level: Gaussians
+decoded without culling and the share culled; decode ms without and with culling (median,
+2 threads, measured in one run); the PSNR of the culled render against the unculled one.
 """
 
 from __future__ import annotations
 
 import argparse
+
 from archhead_addon.timing import restart_with_threads, time_calls
 
 LODS = (0.0, 0.5, 1.0)
@@ -80,7 +81,9 @@ def main(argv=None) -> None:
                 ms.append(
                     [
                         time_calls(
-                            lambda v=v: runtime.decode(lod, view=v, **codes), args.repeats, 1
+                            lambda v=v, c=codes, level=lod: runtime.decode(level, view=v, **c),
+                            args.repeats,
+                            1,
                         ).median_ms
                         for v in views
                     ]

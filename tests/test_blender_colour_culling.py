@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from training_subject import TINY_CONFIG
 
-from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.splat.sh import sh_to_rgb_numpy
 
 pytestmark = pytest.mark.blender
@@ -39,7 +38,7 @@ def sh_avatar(tmp_path_factory, tiny_subject, demo_scene, repo_root):
     assert bpy.ops.archhead.load_avatar(filepath=str(checkpoint)) == {"FINISHED"}
     obj = bpy.data.objects[f"{head.name}_avatar"]
     bpy.context.scene.frame_set(2)
-    return {"obj": obj, "runtime": AvatarRuntime.load(checkpoint)}
+    return {"obj": obj}
 
 
 def _module(name):
@@ -54,7 +53,7 @@ def _levels(linear_rgba) -> np.ndarray:
 
 
 def test_the_default_display_shows_the_full_trained_colour(sh_avatar):
-    obj, runtime = sh_avatar["obj"], sh_avatar["runtime"]
+    obj = sh_avatar["obj"]
     assert obj.archhead_avatar.view_dependent  # the default
     scene, depsgraph = bpy.context.scene, bpy.context.evaluated_depsgraph_get()
     _, splat = _module("handlers").frame_to_show(obj, scene, depsgraph)
