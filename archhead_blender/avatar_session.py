@@ -78,16 +78,25 @@ class AvatarSession:
         self.shown: tuple | None = None  # what the point object holds now
         self.lod_override: float | None = None  # batch renders fix the level of detail
 
-    def key(self, codes: FrameCodes, lod: float, view: ViewFrustum | None = None) -> str:
-        digest = codes.digest() if view is None else f"{codes.digest()}/{view.key()}"
+    def key(self, codes: FrameCodes, lod: float, view=None, sh_degree=None) -> str:
+        digest = codes.digest()
+        if view is not None:
+            digest += f"/{view.key()}"
+        if sh_degree is not None and sh_degree != self.sh_degree:
+            digest += f"/sh{sh_degree}"
         return frame_key(self.digest, digest, resolution_for_lod(lod)[0])
 
     def frame(
-        self, codes: FrameCodes, lod: float, view: ViewFrustum | None = None
+        self,
+        codes: FrameCodes,
+        lod: float,
+        view: ViewFrustum | None = None,
+        sh_degree: int | None = None,
     ) -> tuple[str, SplatFrame]:
         """(key, Gaussians) from memory, the disk cache or a fresh decode; `view` culls to
-        a camera (a culled frame is cached under that camera)."""
-        key = self.key(codes, lod, view)
+        a camera (a culled frame is cached under that camera); `sh_degree` overrides the
+        bands the display decodes."""
+        key = self.key(codes, lod, view, sh_degree)
         splat = self.memory.get(key)
         if splat is None and self.disk is not None:
             splat = self.disk.get(key)
@@ -97,7 +106,7 @@ class AvatarSession:
             gaussians = self.runtime.decode(
                 resolution_for_lod(lod)[0],
                 precision=PRECISION,
-                sh_degree=self.sh_degree,
+                sh_degree=self.sh_degree if sh_degree is None else sh_degree,
                 view=view,
                 **kwargs,
             )

@@ -17,6 +17,7 @@ from archhead_addon.avatar.frame_selection import contiguous_runs
 from archhead_addon.export.transform import transform_frame
 from archhead_addon.io.atomic import write_bytes_atomic
 from archhead_addon.splat.blender_render import render_from_blender_camera
+from archhead_addon.splat.colour_space import straight_display
 from archhead_addon.splat.frame import SplatFrame
 from archhead_addon.synthetic.png import encode_png
 from archhead_addon.threads import thread_count
@@ -90,6 +91,10 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
     scene.frame_set(frame)
     depsgraph = context.evaluated_depsgraph_get()
     parts = []
+    spaces = {session(obj).runtime.config.colour_space for obj in avatars}
+    space = "linear" if "linear" in spaces else "display"
+    if len(spaces) > 1:  # one image blends in one space: the older avatars' look changes
+        print(f"ArchHead: avatars of both colour spaces in one exact render; blending {space}")
     for obj in avatars:  # every avatar in Blender's world space, then one image of them all
         _, splat = frame_to_show(obj, scene, depsgraph, culled=True)
         parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
@@ -102,7 +107,7 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
         num_threads=render_threads(scene),
     )
     path = out_dir / f"frame_{frame:04d}.png"
-    write_png(path, raster.rgb, raster.alpha)
+    write_png(path, straight_display(raster.rgb, raster.alpha, space), raster.alpha)
     return path
 
 
@@ -125,10 +130,10 @@ def render_threads(scene) -> int:
     return thread_count(scene.render.threads, f"scene '{scene.name}'", "render.threads")
 
 
-def write_png(path: Path, premultiplied_rgb: np.ndarray, alpha: np.ndarray) -> None:
-    """An 8-bit RGBA PNG (straight alpha, as PNG defines it) from a premultiplied image."""
+def write_png(path: Path, straight_rgb: np.ndarray, alpha: np.ndarray) -> None:
+    """An 8-bit RGBA PNG (straight alpha, as PNG defines it)."""
     rgba = np.empty((*alpha.shape, 4), np.float32)
-    rgba[..., :3] = premultiplied_rgb / np.maximum(alpha, 1e-6)[..., None]
+    rgba[..., :3] = straight_rgb
     rgba[..., 3] = alpha
     pixels = np.round(np.clip(rgba, 0.0, 1.0) * 255).astype(np.uint8)
     write_bytes_atomic(path, encode_png(pixels))

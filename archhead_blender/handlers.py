@@ -39,22 +39,26 @@ def resume() -> None:
     STATE.suspended = max(STATE.suspended - 1, 0)
 
 
-def frame_to_show(obj, scene, depsgraph, culled: bool = False) -> tuple[str, SplatFrame]:
+def frame_to_show(
+    obj, scene, depsgraph, culled: bool = False, full_colour: bool = False
+) -> tuple[str, SplatFrame]:
     """(cache key, Gaussians) the avatar shows at the scene's frame: the codes and level of
     detail there, or with "Hold" between decoded frames, the last decoded frame's; `culled`
-    leaves out what the scene camera cannot see (archhead_addon.avatar.culling)."""
+    leaves out what the scene camera cannot see (archhead_addon.avatar.culling),
+    `full_colour` decodes every SH band even where the display shows the DC term (export)."""
     avatar = session(obj)
     settings = obj.archhead_avatar
     view = camera_frustum(obj, scene, depsgraph) if culled else None
+    degree = avatar.runtime.config.sh_degree if full_colour else None
     frame = scene.frame_current
     if settings.between == "HOLD" and frame not in avatar.decoded:
         held = held_frame(sorted(avatar.decoded), frame)
         if held is not None:
             record = avatar.decoded[held]
-            return avatar.frame(record.codes, record.lod, view)
+            return avatar.frame(record.codes, record.lod, view, degree)
     codes = frame_codes(settings.head, depsgraph, avatar.joint_dirs)
     lod = avatar.lod_override if avatar.lod_override is not None else avatar_lod(obj, depsgraph)
-    return avatar.frame(codes, lod, view)
+    return avatar.frame(codes, lod, view, degree)
 
 
 def culls(obj, depsgraph) -> bool:
@@ -73,7 +77,7 @@ def refresh_avatar(obj, scene, depsgraph) -> bool:
     state = (key, None if view_from is None else tuple(view_from.round(6)))
     if state == avatar.shown:
         return False
-    write_points(obj, point_attributes(splat, view_from))
+    write_points(obj, point_attributes(splat, view_from, avatar.runtime.config.colour_space))
     avatar.shown = state
     return True
 

@@ -14,6 +14,7 @@ from archhead_addon.avatar.gaussians import SH_C0
 from archhead_addon.avatar.model import ArchHeadAvatar
 from archhead_addon.flame.lbs import forward as flame_forward
 from archhead_addon.rotations import axis_angle_to_matrix, axis_angle_to_quaternion
+from archhead_addon.splat.colour_space import srgb_to_linear
 from archhead_addon.uv.raster import position_map
 
 ATTRS = ("means", "log_scales", "quats", "opacity_logits", "sh", "offsets")
@@ -71,8 +72,8 @@ def test_untrained_avatar_starts_as_a_sane_surface():
         assert torch.allclose(g.quats.norm(dim=1), torch.ones(len(g)), atol=1e-6)
         opacity = torch.sigmoid(g.opacity_logits)
         assert 0.15 < opacity.min() and opacity.max() < 0.25
-        rgb = 0.5 + SH_C0 * g.sh[:, 0]
-        assert (rgb - 0.5).abs().max() < 0.05
+        rgb = 0.5 + SH_C0 * g.sh[:, 0]  # linear: the grey start, linearised
+        assert (rgb - float(srgb_to_linear(np.array(0.5)))).abs().max() < 0.05
         assert g.sh.shape == (len(g), avatar.config.sh_coeffs, 3)
         assert g.uv_texel.dtype == torch.int64
 

@@ -17,13 +17,14 @@ from archhead_addon.avatar.frame_selection import (
     parse_frames,
 )
 from archhead_addon.avatar.gaussians import SH_C0, Gaussians
-from archhead_addon.avatar.point_attributes import point_attributes, srgb_to_linear
+from archhead_addon.avatar.point_attributes import point_attributes
 from archhead_addon.avatar.scene_codes import codes_from_rig, expression_joint_dirs
 from archhead_addon.flame import load_model
 from archhead_addon.flame.teeth import add_teeth
 from archhead_addon.rig import rig_animation
 from archhead_addon.rotations import quaternion_to_matrix
 from archhead_addon.sequences.demo import demo_sequence
+from archhead_addon.splat.colour_space import srgb_to_linear
 from archhead_addon.splat.frame import MIN_OPACITY, SplatFrame
 
 
@@ -161,19 +162,23 @@ def test_check_head_names_what_does_not_fit():
 def test_point_attributes():
     rng = np.random.default_rng(4)
     frame = SplatFrame.from_gaussians(_gaussians(20, rng, np.linspace(-3, 3, 20)))
-    attrs = point_attributes(frame)
+    attrs = point_attributes(frame, colour_space="display")
     np.testing.assert_allclose(attrs["scale"], np.exp(frame.log_scales), rtol=1e-6)
     np.testing.assert_allclose(attrs["opacity"], 1 / (1 + np.exp(-frame.opacity_logits)), rtol=1e-6)
     dc = np.maximum(0.5 + SH_C0 * frame.sh[:, 0], 0)
     np.testing.assert_allclose(attrs["colour"][:, :3], srgb_to_linear(dc), rtol=1e-5)
     assert "colour_view" not in attrs and np.all(attrs["colour"][:, 3] == 1)
+    # a linear avatar's colours are Blender's already
+    np.testing.assert_allclose(point_attributes(frame)["colour"][:, :3], dc, rtol=1e-6)
     centre = np.array([0.0, 0.0, 5.0])
-    seen = point_attributes(frame, view_from=centre)["colour_view"]
+    seen = point_attributes(frame, view_from=centre, colour_space="display")["colour_view"]
     # with only the DC band the view colour is the DC colour
     frame.sh[:, 1:] = 0
-    flat = point_attributes(frame, view_from=centre)["colour_view"]
+    flat = point_attributes(frame, view_from=centre, colour_space="display")["colour_view"]
     np.testing.assert_allclose(flat, attrs["colour"], atol=1e-6)
     assert np.abs(seen - flat).max() > 1e-3
+    # one coefficient: no view colour to compute
+    assert "colour_view" not in point_attributes(replace(frame, sh=frame.sh[:, :1]), centre)
     assert srgb_to_linear(np.array([0.0, 0.04045, 1.0, 2.0])).tolist() == pytest.approx(
         [0.0, 0.04045 / 12.92, 1.0, 1.0]
     )

@@ -13,9 +13,11 @@ from bpy_extras.anim_utils import action_get_channelbag_for_slot
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
 
+from archhead_addon.avatar.gaussians import SH_C0
 from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.camera import FLAME_TO_BLENDER
 from archhead_addon.export.ply import read_ply, rows_to_gaussians
+from archhead_addon.splat.colour_space import linear_to_srgb
 from archhead_addon.splat.frame import SplatFrame
 
 pytestmark = pytest.mark.blender
@@ -240,8 +242,11 @@ def test_ply_export_round_trip(avatar, tmp_path):
     assert bpy.ops.archhead.export_ply(filepath=str(path)) == {"FINISHED"}
     want = _expected(avatar, 1, 0.0)
     got = rows_to_gaussians(read_ply(path))
-    for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
+    for name in ("means", "log_scales", "quats", "opacity_logits"):
         np.testing.assert_allclose(got[name], getattr(want, name), atol=2e-5)
+    # the avatar blends linear colours; the file holds display colours, as 3DGS readers blend
+    linear = np.maximum(0.5 + SH_C0 * want.sh[:, 0], 0)
+    np.testing.assert_allclose(0.5 + SH_C0 * got["sh"][:, 0], linear_to_srgb(linear), atol=2e-5)
     assert bpy.ops.archhead.export_ply(
         filepath=str(tmp_path / "w_##.ply"), frames="CUSTOM", custom_frames="2-3", space="WORLD"
     ) == {"FINISHED"}
@@ -254,7 +259,7 @@ def test_ply_export_round_trip(avatar, tmp_path):
     imported = bpy.context.selected_objects[0]
     assert len(imported.data.vertices) == len(want)
     names = set(imported.data.attributes.keys())
-    assert {"f_dc_0", "f_rest_44", "opacity", "scale_2", "rot_3"} <= names
+    assert {"f_dc_0", "f_dc_2", "opacity", "scale_2", "rot_3"} <= names
     values = np.empty(len(want), np.float32)
     imported.data.attributes["rot_0"].data.foreach_get("value", values)
     np.testing.assert_allclose(values, want.quats[:, 0], atol=1e-6)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from training_subject import TINY_CONFIG
 
+from archhead_addon.splat.colour_space import linear_to_srgb
 from archhead_addon.splat.sh import sh_to_rgb_numpy
 
 pytestmark = pytest.mark.blender
@@ -45,11 +46,9 @@ def _module(name):
     return importlib.import_module(f"archhead_blender.{name}")
 
 
-def _levels(linear_rgba) -> np.ndarray:
+def _levels(linear_rgb) -> np.ndarray:
     """8-bit display levels of linear colours (the Standard view transform's sRGB)."""
-    c = np.clip(linear_rgba[:, :3], 0, 1)
-    srgb = np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
-    return 255 * srgb
+    return 255 * linear_to_srgb(linear_rgb[:, :3])
 
 
 def test_the_default_display_shows_the_full_trained_colour(sh_avatar):
@@ -59,10 +58,10 @@ def test_the_default_display_shows_the_full_trained_colour(sh_avatar):
     _, splat = _module("handlers").frame_to_show(obj, scene, depsgraph)
     assert splat.sh.shape[1] == 16 and np.abs(splat.sh[:, 1:]).max() > 0.02  # bands trained
     centre = _module("scene_state").camera_in_object(obj, scene, depsgraph)
-    full = sh_to_rgb_numpy(3, splat.means - centre, splat.sh)
+    full = sh_to_rgb_numpy(3, splat.means - centre, splat.sh)  # linear: the avatar's space
     points = _module("point_instances").read_points(obj)
     shown = _levels(points["colour_view"])
-    want = 255 * np.clip(full, 0, 1)
+    want = _levels(full)
     assert np.abs(shown - want).mean() < 1.0  # within one 8-bit level (the aim)
     # the DC term alone is visibly off: the check above could tell the two apart
     assert np.abs(_levels(points["colour"]) - want).mean() > 2 * np.abs(shown - want).mean()
@@ -114,3 +113,32 @@ def test_culling_to_a_close_camera_decodes_fewer_gaussians_for_the_same_image(sh
         obj.archhead_avatar.cull = "RENDER"
         camera.matrix_world = saved
         bpy.context.view_layer.update()
+
+
+def test_cycles_shows_what_the_exact_splat_render_shows(sh_avatar, tmp_path):
+    """The trained avatar's point instances in Cycles against the kernel's image from the same
+    camera: both blend its colours in linear light (splat/colour_space.py)."""
+    scene = bpy.context.scene
+    r = scene.render
+    r.engine, r.film_transparent = "CYCLES", True
+    scene.cycles.samples, scene.cycles.use_denoising = 32, False
+    scene.cycles.use_adaptive_sampling = False
+    r.resolution_x = r.resolution_y = 96
+    r.resolution_percentage = 100
+    r.threads_mode, r.threads = "FIXED", 2
+    r.image_settings.file_format, r.image_settings.color_mode = "PNG", "RGBA"
+    r.image_settings.color_depth = "8"
+    scene.view_settings.view_transform = "Standard"
+    batch = _module("batch_render")
+    frame = scene.frame_current
+    exact = batch.read_image(batch.render_frames(bpy.context, [frame], tmp_path, exact=True)[0])
+    cycles = batch.read_image(batch.render_frames(bpy.context, [frame], tmp_path / "c")[0])
+
+    def over_grey(rgba):
+        return rgba[..., :3] * rgba[..., 3:] + 0.12 * (1 - rgba[..., 3:])
+
+    assert exact[..., 3].max() > 0.9  # the avatar is in the picture
+    mse = np.mean((over_grey(cycles) - over_grey(exact)) ** 2)
+    psnr = 10 * np.log10(1.0 / mse)
+    print(f"PSNR Cycles / exact splat, trained SH avatar: {psnr:.1f} dB")
+    assert psnr > 36.0, psnr  # 41.4 dB measured; the aim is 32

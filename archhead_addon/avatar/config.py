@@ -14,8 +14,10 @@ from dataclasses import asdict, dataclass, fields, replace
 # colour head's depends on the SH degree: AvatarConfig.head_outputs)
 HEADS = ("offset", "scale", "rotation", "opacity", "colour")
 FIXED_OUTPUTS = {"offset": 3, "scale": 3, "rotation": 4, "opacity": 1}
-# Checkpoints written before the colour's degree became a field hold degree-3 SH.
-LEGACY_SH_DEGREE = 3
+# What checkpoints written before these fields existed hold: degree-3 SH blended as display
+# values.
+LEGACY = {"sh_degree": 3, "colour_space": "display"}
+COLOUR_SPACES = ("linear", "display")  # splat/colour_space.py
 JAW_DIM, EYES_DIM = 3, 6
 QUAT_EPS = 1e-8  # below this norm a raw quaternion is replaced by the identity
 
@@ -45,6 +47,9 @@ class AvatarConfig:
     # dependence but extra colour, which a display that shows the DC term loses
     # (docs/training.md, "Colour").
     sh_degree: int = 0
+    # How colours blend: "linear" (as Blender blends them; the image is sRGB-encoded at the
+    # end) or "display" (3DGS's, blended as sRGB values). splat/colour_space.py says why.
+    colour_space: str = "linear"
 
     def __post_init__(self):
         _check_types_and_limits(self)
@@ -114,7 +119,8 @@ class AvatarConfig:
         known = {f.name for f in fields(cls)}
         if set(data) - known:
             raise ValueError(f"unknown config fields {sorted(set(data) - known)}")
-        data.setdefault("sh_degree", LEGACY_SH_DEGREE)
+        for key, value in LEGACY.items():
+            data.setdefault(key, value)
         for key in ("levels", "init_rgb", "pe_centre"):
             if key in data:
                 data[key] = tuple(data[key])
@@ -153,6 +159,9 @@ def _check_types_and_limits(config: AvatarConfig) -> None:
         elif f.name == "levels":
             if not all(_is_int(s) and s <= MAX_LEVEL for s in value) or len(value) > 8:
                 raise ValueError(f"levels must be at most 8 integers up to {MAX_LEVEL}")
+        elif f.name == "colour_space":
+            if value not in COLOUR_SPACES:
+                raise ValueError(f"colour_space must be one of {COLOUR_SPACES}, got {value!r}")
         elif isinstance(value, tuple):
             if len(value) != 3 or not all(_is_real(v) for v in value):
                 raise ValueError(f"{f.name} must be three finite numbers")

@@ -29,7 +29,8 @@ Choices (the paper leaves them to its supplement):
              base = log(texel size on the face) = log(metres per UV unit of the face / S);
     rotation raw quaternion with bias (1, 0, 0, 0), normalised (a norm guard returns identity);
     opacity  logit bias = logit(init_opacity = 0.2);
-    colour   SH DC bias (init_rgb - 0.5) / C0 (grey or the albedo's mean), higher bands 0.
+    colour   SH DC bias (init_rgb - 0.5) / C0 (grey or the albedo's mean, linearised for a
+             linear colour space), higher bands 0.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from ..flame.lbs import forward as flame_forward
 from ..flame.lbs_torch import FlameLayer
 from ..flame.model import FlameModel
 from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
+from ..splat.colour_space import srgb_to_linear
 from ..uv.layout import avatar_mesh
 from ..uv.raster import UVRaster, face_texel_scale, position_map
 from .config import QUAT_EPS, AvatarConfig
@@ -149,7 +151,10 @@ class ArchHeadAvatar(nn.Module):
             "opacity": [math.log(self.config.init_opacity / (1 - self.config.init_opacity))],
         }
         colour = torch.zeros(self.config.head_outputs()["colour"])
-        colour[:3] = (torch.tensor(self.config.init_rgb) - 0.5) / SH_C0
+        rgb = np.asarray(self.config.init_rgb)
+        if self.config.colour_space == "linear":
+            rgb = srgb_to_linear(rgb)
+        colour[:3] = (torch.tensor(rgb, dtype=torch.float32) - 0.5) / SH_C0
         with torch.no_grad():
             for name, head in self.decoder.heads.items():
                 head.out.weight.mul_(OUTPUT_INIT_GAIN)

@@ -1,5 +1,6 @@
 """Frames of a trained avatar through the numpy runtime and the C++ splat kernel: the path
-Blender uses, timed per part (decode, then SH colour + splat)."""
+Blender uses, timed per part (decode, then SH colour + splat), blended in the avatar's colour
+space (splat/colour_space.py)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 from ..avatar.culling import ViewFrustum
 from ..avatar.runtime import AvatarRuntime
 from ..splat import kernel
+from ..splat.colour_space import display_background, linear_to_srgb
 from ..splat.sh import degree_from_coeffs, sh_to_rgb_numpy
 from ..timing import Stopwatch
 
@@ -48,6 +50,7 @@ def render_frame(
     )
     decode_ms = 1e3 * watch.seconds
     watch = Stopwatch()
+    space = runtime.config.colour_space
     sh = np.asarray(g.sh, np.float32)
     centre = np.linalg.inv(np.asarray(w2c, np.float64))[:3, 3]
     colours = sh_to_rgb_numpy(degree_from_coeffs(sh.shape[1]), g.means - centre, sh)
@@ -56,8 +59,9 @@ def render_frame(
         K=np.asarray(K, np.float64),
         width=size[1],
         height=size[0],
-        background=tuple(map(float, background)),
+        background=tuple(map(float, display_background(background, space))),
         num_threads=num_threads,
     )
     raster = kernel.render(g.means, g.quats, g.log_scales, g.opacity_logits, colours, settings)
-    return RenderedFrame(raster.rgb, len(g), decode_ms, 1e3 * watch.seconds)
+    rgb = linear_to_srgb(raster.rgb) if space == "linear" else raster.rgb
+    return RenderedFrame(rgb.astype(np.float32), len(g), decode_ms, 1e3 * watch.seconds)

@@ -46,6 +46,7 @@ from ..avatar.config import AvatarConfig
 from ..avatar.model import ArchHeadAvatar
 from ..io.atomic import atomic_path, write_bytes_atomic
 from ..splat import rasterization
+from ..splat.colour_space import display_background, linear_to_srgb_torch
 from ..splat.rendering import select_backend
 from ..uv.layout import avatar_mesh
 from .config import TrainConfig
@@ -130,7 +131,10 @@ class Trainer:
             raise ValueError("no training frames")
         self.config, self.frames, self.avatar = config, frames, avatar
         self.out_dir, self.device = Path(out_dir), device
-        self.background = torch.as_tensor(background, dtype=torch.float32)
+        # the background as the renderer blends it (linearised for a linear colour space)
+        self.background = torch.as_tensor(
+            display_background(background, avatar.config.colour_space), dtype=torch.float32
+        )
         perceptual = ShiftTolerantLPIPS().to(device) if config.loss.lpips > 0 else None
         self.loss = TrainingLoss(config.loss, perceptual)
         groups = {
@@ -214,6 +218,7 @@ class Trainer:
         """(rgb (H,W,3), Gaussians) of a frame at level `lod`."""
         g = self.avatar(lod, **frame.codes)
         h, w = frame.image.shape[:2]
+        linear = self.avatar.config.colour_space == "linear"
         out = rasterization(
             g.means,
             g.quats,
@@ -227,7 +232,7 @@ class Trainer:
             background=self.background,
             num_threads=self.config.threads,
         )
-        return out.rgb, g
+        return (linear_to_srgb_torch(out.rgb) if linear else out.rgb), g
 
     def train_step(self) -> StepReport:
         step, cfg = self.step, self.config
