@@ -78,7 +78,6 @@ class TrainConfig:
     threads: int = 0  # CPU threads of torch and the splat kernel; 0 = their default (all)
     device: str = "auto"  # "auto" (CUDA when present), "cpu" or "cuda"
     holdout: str = "last"  # the test frames (HOLDOUTS): the last 10 %, or every tenth
-    level_sampling: str = "ends"
 
     def __post_init__(self):
         """Bad values raise InputError naming the key (`load` adds the file). JSON allows
