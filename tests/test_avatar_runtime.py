@@ -109,3 +109,39 @@ def test_fp16_path_stays_close_and_halves_the_cache(saved):
     assert runtime.level(size, "fp16")["first"].dtype == np.float16
     with pytest.raises(ValueError, match="precision"):
         runtime.decode(0.9, precision="int8")
+
+
+def test_fewer_sh_bands_and_culling_decode_subsets_of_the_full_frame(tmp_path):
+    """`sh_degree` keeps the first coefficients of the full decode; a view keeps exactly the
+    Gaussians of its texels, unchanged, and drops those that cannot reach the camera."""
+    from archhead_addon.avatar.config import AvatarConfig
+    from archhead_addon.avatar.culling import ViewFrustum
+
+    config = AvatarConfig(n_expr=sphere_head().n_expr, sh_degree=3)
+    save_avatar(tmp_path / "sh3.npz", make_avatar(config))
+    np.savez(tmp_path / "head.npz", **sphere_head().to_arrays())
+    runtime = AvatarRuntime.load(tmp_path / "sh3.npz", flame=tmp_path / "head.npz")
+    codes = frame_codes(seed=3)
+    full = runtime.decode(0.0, **codes)
+    dc = runtime.decode(0.0, sh_degree=0, **codes)
+    assert full.sh.shape[1] == 16 and dc.sh.shape[1] == 1
+    np.testing.assert_allclose(dc.sh, full.sh[:, :1], atol=1e-5)  # BLAS round-off
+    # a camera 0.5 m in front of the head, looking at it; K wide enough for all of it
+    centre = full.means.mean(0).astype(np.float64)
+    w2c = np.diag([1.0, -1.0, -1.0, 1.0])
+    w2c[:3, 3] = -w2c[:3, :3] @ (centre + [0, 0, 0.5])
+    wide = ViewFrustum.from_camera(w2c, [[100, 0, 50], [0, 100, 50], [0, 0, 1]], 100, 100)
+    assert len(runtime.decode(0.0, view=wide, **codes)) == len(full)
+    # a narrow lens sees the middle of the head only
+    narrow = ViewFrustum.from_camera(w2c, [[2000, 0, 50], [0, 2000, 50], [0, 0, 1]], 100, 100)
+    part = runtime.decode(0.0, view=narrow, **codes)
+    assert 0 < len(part) < 0.8 * len(full)  # random weights: offsets reach far
+    index = {t: i for i, t in enumerate(full.uv_texel.tolist())}
+    rows = [index[t] for t in part.uv_texel.tolist()]
+    for name in ATTRS:
+        np.testing.assert_allclose(getattr(part, name), getattr(full, name)[rows], atol=1e-5)
+    # what was left out lies beyond the view, even with its reach
+    dropped = np.setdiff1d(np.arange(len(full)), rows)
+    cam = full.means[dropped] @ w2c[:3, :3].T + w2c[:3, 3]
+    outside = np.abs(cam[:, :2]).max(axis=1) / cam[:, 2]
+    assert len(dropped) and (outside > 50 / 2000).all()
