@@ -15,7 +15,7 @@ from archhead_addon.io.errors import InputError
 from .avatar_props import is_avatar
 from .avatar_session import base_model, drop_session, flame_model_path
 from .handlers import refresh_avatar
-from .point_instances import create_point_object
+from .point_instances import create_point_object, show_mean_colour
 from .scene_state import head_rig
 
 CYCLES_TRANSPARENT_BOUNCES = 256  # rays cross many overlapping Gaussians near silhouettes
@@ -86,6 +86,7 @@ def load_avatar(context, head, path) -> tuple[bpy.types.Object, list[str]]:
             bpy.data.objects.remove(created)
             bpy.data.meshes.remove(mesh)
         raise
+    show_mean_colour(obj)  # Solid mode's colour (Workbench draws no shader nodes)
     _make_room(head, context.scene)
     return obj, found.warnings
 

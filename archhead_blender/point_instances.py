@@ -12,6 +12,12 @@ computes, in the instance's own space (where the Gaussian is isotropic), the squ
 d^2 of the camera ray from the centre, in units of the sphere's radius, and gives the front face
 alpha = opacity * exp(-d^2 SIGMA_EXTENT^2 / 2): the Gaussian's peak density along the ray, as a
 splat renderer evaluates it. Back faces are fully transparent. Colours are emitted unlit.
+
+Solid mode (Workbench) shows neither shader nodes nor instance attributes: it colours each
+instance by its material's viewport display colour. So every avatar gets its own copy of the
+material (a Material input of the node group, set on its modifier) whose display colour is
+the avatar's mean colour (`show_mean_colour`), and the object's colour is the same, for
+"Object" colouring.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ SIGMA_EXTENT = 3.0  # instance radius in standard deviations (3DGS' own 3-sigma 
 ICO_SUBDIVISIONS = 2  # 80 faces: the falloff, not the facets, shapes each Gaussian
 NODE_GROUP = "ArchHead Gaussians"
 MATERIAL = "ArchHead Gaussian"
+MATERIAL_INPUT = "Material"  # the node group's input: each avatar's own copy of MATERIAL
 # attribute name -> (type, foreach_set field, components)
 ATTRIBUTES = {
     "scale": ("FLOAT_VECTOR", "vector", 3),
@@ -45,7 +52,48 @@ def create_point_object(name: str, parent, collection):
     modifier = obj.modifiers.new("ArchHead Gaussians", "NODES")
     modifier.node_group = gaussian_node_group()
     obj.visible_shadow = False  # emitters of their own colour: they cast no shadow
+    avatar_material(obj)
     return obj
+
+
+def _gaussians_modifier(obj):
+    return next(
+        (m for m in obj.modifiers if m.type == "NODES" and m.node_group is gaussian_node_group()),
+        None,
+    )
+
+
+def avatar_material(obj):
+    """The avatar's own copy of the Gaussian material (made on first use; older files' avatars
+    have none and show the shared one)."""
+    modifier = _gaussians_modifier(obj)
+    if modifier is None:
+        return None
+    key = _material_input(modifier.node_group).identifier
+    mat = modifier.get(key)
+    if mat is None or mat.name == MATERIAL:
+        mat = gaussian_material().copy()
+        mat.name = f"{obj.name} Gaussian"
+        modifier[key] = mat
+        obj.update_tag()
+    return mat
+
+
+def show_mean_colour(obj) -> tuple[float, float, float] | None:
+    """Solid mode's colour of the avatar (its material's and its object's display colour):
+    the opacity-weighted mean of its points' colours (scene-linear, as the attribute)."""
+    mesh = obj.data
+    n = len(mesh.vertices)
+    if n == 0 or "colour" not in mesh.attributes:
+        return None
+    colour = _get(mesh.attributes["colour"], "color", n, 4)[:, :3]
+    weight = _get(mesh.attributes["opacity"], "value", n, 1) + 1e-6
+    rgb = tuple(float(c) for c in (colour * weight[:, None]).sum(0) / weight.sum())
+    mat = avatar_material(obj)
+    if mat is not None:
+        mat.diffuse_color = (*rgb, 1.0)
+    obj.color = (*rgb, 1.0)
+    return rgb
 
 
 def write_points(obj, attributes: dict[str, np.ndarray]) -> None:
@@ -92,6 +140,7 @@ def gaussian_node_group():
     """Instance on Points: icosphere x (scale * SIGMA_EXTENT), rotated by the quaternion."""
     group = bpy.data.node_groups.get(NODE_GROUP)
     if group is not None:
+        _material_input(group)
         return group
     group = bpy.data.node_groups.new(NODE_GROUP, "GeometryNodeTree")
     group.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
@@ -117,7 +166,29 @@ def gaussian_node_group():
     links.new(extent.outputs["Vector"], instance.inputs["Scale"])
     links.new(instance.outputs["Instances"], out.inputs["Geometry"])
     _arrange([inp, sphere, set_material, rotation, scale, extent, instance, out])
+    _material_input(group)
     return group
+
+
+def _material_input(group):
+    """The group's Material input, feeding Set Material (added to a group from a file made
+    before it; the avatars there keep the shared material until they are loaded again)."""
+    socket = group.interface.items_tree.get(MATERIAL_INPUT)
+    if socket is not None:
+        return socket
+    socket = group.interface.new_socket(
+        MATERIAL_INPUT, in_out="INPUT", socket_type="NodeSocketMaterial"
+    )
+    shared = gaussian_material()
+    socket.default_value = shared
+    inp = next(n for n in group.nodes if n.bl_idname == "NodeGroupInput")
+    set_material = next(n for n in group.nodes if n.bl_idname == "GeometryNodeSetMaterial")
+    group.links.new(inp.outputs[MATERIAL_INPUT], set_material.inputs["Material"])
+    for obj in bpy.data.objects:  # modifiers made before the input: the shared material
+        for modifier in obj.modifiers:
+            if modifier.type == "NODES" and modifier.node_group is group:
+                modifier[socket.identifier] = modifier.get(socket.identifier) or shared
+    return socket
 
 
 def _named_attribute(nodes, name: str, data_type: str):

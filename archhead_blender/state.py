@@ -53,7 +53,7 @@ def reset(keep_models: bool = True) -> None:
         # Nothing will poll it any more (Blender quitting disables the add-ons, a file
         # load): wait while it finishes its step and saves, so the run keeps a checkpoint.
         print("ArchHead: stopping training (saving a checkpoint) ...", flush=True)
-        STATE.training_run.backend.stop()
+        STATE.training_run.stop_unwatched()  # says how to resume it
     if STATE.tracking_run is not None:
         STATE.tracking_run.backend.cancel()
     kept = (STATE.base_models, STATE.head_models, STATE.dialog_fields)

@@ -78,6 +78,31 @@ class TrainingRun:
         rate = f", {s.seconds_per_step:.2f} s/step" if s.seconds_per_step else ""
         return f"Stage {s.stage}: {s.step} / {s.total}{rate}, ETA {format_eta(s.eta_seconds)}"
 
+    def stop_unwatched(self) -> str:
+        """Stop the run when nothing will watch it any more (Blender quitting, the add-on
+        disabled, another file loaded): wait while the backend saves its checkpoint, then say
+        where the run stands and how to go on, in the console and at the end of its log
+        (Blender's window, and with it the status bar, is gone by then)."""
+        self.backend.stop()
+        self.update()
+        message = self.stopped_message()
+        print(f"ArchHead: {message}", flush=True)
+        with open(self.run_folder.log, "a", encoding="utf-8") as log:
+            log.write(f"ArchHead: {message}\n")
+        return message
+
+    def stopped_message(self) -> str:
+        code, s = self.backend.returncode, self.status
+        if code == 0:
+            return f"training finished; the avatar is {self.avatar}"
+        if self.avatar.is_file():
+            return (
+                f"training stopped at step {s.step} of {s.total}; its checkpoint is saved in "
+                f"{self.out_dir}. To go on: Train Avatar with the same frames, tracking and "
+                "Output, and Resume ticked"
+            )
+        return f"training stopped (exit code {code}) before a checkpoint; see {self.run_folder.log}"
+
     def loss_text(self) -> str:
         loss = self.status.loss
         if not loss:

@@ -107,4 +107,5 @@ def _draw_training(layout, context):
     box.label(text=run.loss_text())
     row = box.row()
     row.operator("archhead.cancel_training", icon="CANCEL")
-    box.label(text="Quitting stops it too (it saves first)", icon="INFO")
+    box.label(text="Quitting stops it too (it saves first);", icon="INFO")
+    box.label(text="Train Avatar > Resume goes on", icon="BLANK1")

@@ -1,6 +1,7 @@
 """Train Avatar in the window on a tiny subject rendered by the binary itself
 (`blender -b --python scripts/synthetic_subject.py`), with progress and Cancel."""
 
+import re
 import shutil
 
 import pytest
@@ -41,7 +42,9 @@ def test_train_progress_cancel_and_undo(blender_session, tiny_subject, tiny_conf
     assert (out / "run" / "train.log").is_file()
 
 
-def test_quitting_during_training_saves_a_checkpoint(blender_session, tiny_subject, tiny_config):
+def test_quitting_during_training_saves_a_checkpoint_and_says_how_to_resume(
+    blender_session, tiny_subject, tiny_config
+):
     from ui_session import OUT
 
     out = OUT / "training_quit"
@@ -52,3 +55,17 @@ def test_quitting_during_training_saves_a_checkpoint(blender_session, tiny_subje
     log = (run / "train.log").read_text()
     assert '"event": "interrupted"' in log and "[exit code 130]" in log, log[-2000:]
     assert (run / "avatar.npz").is_file()
+    # what the artist is told (Blender's console and the run's log): where it stopped, how
+    # to go on
+    said = re.search(r"ArchHead: training stopped at step (\d+) of \d+; .* Resume ticked", log)
+    assert said, log[-2000:]
+    assert said.group(0) in (out / "train_quit.log").read_text()
+    step = int(said.group(1))
+    assert step > 0
+    # ... and doing so goes on from there
+    resumed = blender_session.ui(
+        "train_resume.py", out, str(tiny_subject), str(tiny_config), str(run), str(step)
+    )
+    assert resumed["data"]["first_step"] >= step
+    starts = re.findall(r'"event": "start", "step": (\d+)', (run / "train.log").read_text())
+    assert [int(s) for s in starts] == [0, step]  # the second run began where the first saved

@@ -1,6 +1,7 @@
 """An artist's first session: File > Import through the file browser, the panel, Load Avatar,
 undo and redo of both, a modal Decode cancelled half way, LOD by hand and by the
-camera-distance driver while the camera moves and the timeline plays, save.
+camera-distance driver while the camera moves and the timeline plays, and from another
+camera made active during playback, save.
 
     blender --python scene_workflow.py -- SEQUENCE.npz AVATAR.npz OUT.blend
 """
@@ -139,6 +140,59 @@ def lod_driver_playback(ui):
     ui.screenshot("driver_end_of_playback", area_type="VIEW_3D")
 
 
+def driver_follows_active_camera(ui):
+    """While the timeline plays, the artist makes another camera active (Ctrl+Numpad0 on it):
+    the driver measures from that camera from then on."""
+    import mathutils
+
+    avatar = bpy.data.objects[f"{HEAD}_avatar"]
+    scene = bpy.context.scene
+    centre = ui_steps.head_centre(bpy.data.objects[HEAD])
+    near = bpy.data.objects.new("ui_near", bpy.data.cameras.new("ui_near"))
+    scene.collection.objects.link(near)
+    near.rotation_euler = (1.5708, 0.0, 0.0)
+    near.location = centre - mathutils.Vector((0.0, 1.25, 0.0))  # LOD (1.25 - 0.5) / 2.5
+    want = (1.25 - 0.5) / (3.0 - 0.5)
+    check(scene.camera.name == "ui_dolly", f"the active camera is {scene.camera.name}")
+    scene.frame_set(scene.frame_start)  # the dolly at 3.5 m: LOD 1
+    with ui.context("VIEW_3D"):
+        bpy.ops.screen.animation_play()
+    try:
+        yield 0.5
+        before = ui_steps.evaluated_lod(avatar)
+        check(before > 0.8, f"LOD {before:.3f} from the dolly's start")
+        for obj in bpy.context.selected_objects:
+            obj.select_set(False)
+        bpy.context.view_layer.objects.active = near
+        ui.op("view3d.object_as_camera")  # Ctrl+Numpad0: the active object becomes the camera
+        check(scene.camera == near, "Ctrl+Numpad0 did not make ui_near the scene camera")
+        yield from ui.wait_until(
+            lambda: abs(ui_steps.evaluated_lod(avatar) - want) < 0.05,
+            5,
+            f"the driven LOD to follow ui_near ({want:.3f})",
+        )
+        # not the dolly coming near: it is still far away
+        dolly = (bpy.data.objects["ui_dolly"].matrix_world.translation - centre).length
+        check(dolly > 2.0, f"the dolly is {dolly:.2f} m away: no test of the switch")
+        check(bpy.context.screen.is_animation_playing, "playback stopped")
+        frame = scene.frame_current
+        yield 0.5
+        check(scene.frame_current != frame, "the timeline is not playing")
+        lod = ui_steps.evaluated_lod(avatar)  # the dolly still moves; the LOD stays
+        check(abs(lod - want) < 0.05, f"LOD {lod:.3f} moved with the inactive dolly")
+        yield from ui.wait_until(
+            lambda: ui_steps.shows_lod(avatar, ui_steps.evaluated_lod(avatar)),
+            30,
+            "the points to show the new camera's LOD",
+        )
+    finally:
+        with ui.context("VIEW_3D"):
+            bpy.ops.screen.animation_cancel(restore_frame=False)
+    ui.data["camera_switch"] = {"before": round(before, 3), "after": round(lod, 3)}
+    ui.screenshot("driver_after_camera_switch", area_type="VIEW_3D")
+    scene.camera = bpy.data.objects["ui_dolly"]  # as the saved file had it
+
+
 def save(ui):
     with ui.context(None):
         bpy.ops.wm.save_as_mainfile(filepath=str(BLEND))
@@ -155,6 +209,7 @@ run_steps(
         ("modal Decode, cancelled half way", decode_cancel),
         ("LOD by hand", lod_by_hand),
         ("LOD driver during playback", lod_driver_playback),
+        ("LOD driver follows the camera made active", driver_follows_active_camera),
         ("save", save),
     ]
 )

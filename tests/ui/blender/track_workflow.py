@@ -1,0 +1,107 @@
+"""Track Video from the panel on a short real clip: the dialog confirmed with Return, a run
+cancelled half way (its backend gone, no output folder), then a run to the end with its
+progress in the panel, imported as a rigged, shape-keyed head.
+
+    blender --python track_workflow.py -- VIDEO OUT_DIR FRAMES
+"""
+
+import os
+import sys
+from pathlib import Path
+
+import bpy
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ui_driver import check, run_steps, script_args  # noqa: E402
+
+VIDEO, OUT = (Path(p) for p in script_args()[:2])
+FRAMES = int(script_args()[2])
+SIZE = 192  # small crops: the test times the workflow, not the tracker
+
+
+def current_tracking():
+    from archhead_blender.tracking import current_tracking
+
+    return current_tracking()
+
+
+def track_from_dialog(ui, out_dir: Path):
+    """Track Video as its panel button runs it (invoke: the dialog, filled in), confirmed
+    with Return where the dialog opened."""
+    area = ui.area("VIEW_3D")
+    x, y = area.x + area.width // 2, area.y + area.height // 2
+    ui.window.event_simulate(type="MOUSEMOVE", value="NOTHING", x=x, y=y)
+    yield 0.2
+    ui.op(
+        "archhead.track_video",
+        invoke=True,
+        video=str(VIDEO),
+        out_dir=str(out_dir),
+        frames=FRAMES,
+        size=SIZE,
+    )
+    yield 0.5
+    ui.screenshot(f"track_dialog_{out_dir.name}")
+    ui.window.event_simulate(type="RET", value="PRESS", x=x, y=y)
+    ui.window.event_simulate(type="RET", value="RELEASE", x=x, y=y)
+    yield from ui.wait_until(lambda: current_tracking() is not None, 20, "the tracking run")
+    run = current_tracking()
+    ui.data.setdefault("backend_pids", []).append(run.backend.process.pid)
+    return run
+
+
+def cancel_half_way(ui):
+    yield from ui.show_sidebar()
+    out_dir = OUT / "cancelled"
+    run = yield from track_from_dialog(ui, out_dir)
+    pid = run.backend.process.pid
+    # half way: every frame detected, the fit (the longest stage) under way
+    yield from ui.wait_until(lambda: run.status.stage == "fit", 180, "the fit to start")
+    ui.screenshot("tracking_progress", area_type="VIEW_3D")
+    ui.op("archhead.cancel_tracking")
+    yield from ui.wait_until(lambda: current_tracking() is None, 60, "the run to stop")
+    yield 0.5
+    check(not os.path.exists(f"/proc/{pid}"), f"tracking backend {pid} still running")
+    check(not out_dir.exists(), f"a cancelled run left {out_dir}")
+    check("cancelled" not in bpy.data.objects, "a cancelled run imported a head")
+
+
+def track_to_the_end(ui):
+    out_dir = OUT / "clip"
+    run = yield from track_from_dialog(ui, out_dir)
+    seen = []  # (stage, fraction) as the panel showed them
+
+    def progressed():
+        if run.status.stage and (not seen or seen[-1][0] != run.status.stage):
+            seen.append((run.status.stage, round(run.fraction, 3)))
+            ui.screenshot(f"tracking_{run.status.stage}", area_type="VIEW_3D")
+        return current_tracking() is None
+
+    yield from ui.wait_until(progressed, 200, "the tracking to finish", poll=0.3)
+    ui.data["stages"] = seen
+    check([s for s, _ in seen] == ["detect", "fit", "write"], f"stages shown: {seen}")
+    fractions = [f for _, f in seen]
+    check(fractions == sorted(fractions), f"progress went back: {seen}")
+    head = bpy.data.objects.get("clip")
+    check(head is not None, f"no imported head; objects: {sorted(bpy.data.objects.keys())}")
+    rig = head.parent
+    check(rig is not None and rig.type == "ARMATURE", "the tracked head has no rig")
+    keys = head.data.shape_keys.key_blocks.keys() if head.data.shape_keys else []
+    check(any(k.startswith("expr_") for k in keys), f"no expression shape keys: {keys[:5]}")
+    check(rig.animation_data and rig.animation_data.action, "the rig is not animated")
+    scene = bpy.context.scene
+    ui.data["frames"] = [scene.frame_start, scene.frame_end]
+    check(scene.frame_end - scene.frame_start + 1 == FRAMES, f"frame range {ui.data['frames']}")
+    check((out_dir / "tracking.npz").is_file(), "no tracking.npz in the training folder")
+    bpy.data.objects["Cube"].hide_set(True)  # the head sits at the origin, inside it
+    ui.frame_selected()
+    yield 0.3
+    ui.screenshot("tracked_head_imported", area_type="VIEW_3D")
+
+
+run_steps(
+    [
+        ("Track Video, cancelled half way", cancel_half_way),
+        ("Track Video to the end", track_to_the_end),
+    ]
+)

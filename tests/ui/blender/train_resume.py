@@ -1,0 +1,40 @@
+"""After Blender quit during training (train_quit.py): Train Avatar on the same frames,
+tracking and Output with Resume ticked goes on from the saved step, as the quit message said.
+
+    blender --python train_resume.py -- SUBJECT_DIR CONFIG.json OUT_DIR STEP_AT_QUIT
+"""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ui_driver import check, run_steps, script_args  # noqa: E402
+
+SUBJECT, CONFIG, RUN = (Path(p) for p in script_args()[:3])
+STEP_AT_QUIT = int(script_args()[3])
+
+
+def resume(ui):
+    from archhead_blender.training import current_run
+
+    ui.op("archhead.import_sequence", filepath=str(SUBJECT / "tracking.npz"))
+    ui.op(
+        "archhead.train_avatar",
+        frames_dir=str(SUBJECT / "frames"),
+        tracking=str(SUBJECT / "tracking.npz"),
+        out_dir=str(RUN),
+        base_config=str(CONFIG),
+        resume=True,
+    )
+    run = current_run()
+    check(run is not None, "no training run after Train Avatar with Resume")
+    yield from ui.wait_until(lambda: run.status.total > 0, 120, "the resumed run to start")
+    first = run.status.step
+    ui.data["first_step"] = first
+    check(first >= STEP_AT_QUIT, f"resumed at step {first}, quit at {STEP_AT_QUIT}")
+    yield from ui.wait_until(lambda: run.status.step > first, 120, "a step after resuming")
+    ui.op("archhead.cancel_training")
+    yield from ui.wait_until(lambda: current_run() is None, 150, "the run to end")
+
+
+run_steps([("Train Avatar with Resume", resume)])
