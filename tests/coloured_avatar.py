@@ -1,5 +1,6 @@
 """An avatar of one known colour: a checkpoint whose colour head ignores its input and puts
-out the DC coefficients of `rgb` (display values), everything else unchanged. Tests of what
+out the DC coefficients of `rgb` (display values, linearised for a linear avatar), everything
+else unchanged. Tests of what
 Solid mode shows need a colour no grey could pass for."""
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import numpy as np
 
 from archhead_addon.avatar.checkpoint_format import read_checkpoint, write_checkpoint
 from archhead_addon.avatar.gaussians import SH_C0
+from archhead_addon.splat.colour_space import srgb_to_linear
 
 SKIN = (0.85, 0.45, 0.25)  # display values
 
@@ -20,7 +22,10 @@ def write_coloured_avatar(source: Path, out: Path, rgb=SKIN) -> Path:
     params = dict(ckpt.params)
     weight = params["decoder.heads.colour.out.weight"]
     bias = np.zeros_like(params["decoder.heads.colour.out.bias"])
-    bias[:3] = (np.asarray(rgb, np.float32) - 0.5) / SH_C0  # the DC rows come first
+    rgb = np.asarray(rgb, np.float32)
+    if ckpt.config.colour_space == "linear":  # the avatar's colours are linear
+        rgb = srgb_to_linear(rgb)
+    bias[:3] = (rgb - 0.5) / SH_C0  # the DC rows come first
     params["decoder.heads.colour.out.weight"] = np.zeros_like(weight)
     params["decoder.heads.colour.out.bias"] = bias
     write_checkpoint(out, replace(ckpt, params=params))
