@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 SIGMAS = 3.0  # a Gaussian's drawn extent, in standard deviations (as the kernel's cut-off)
-REACH_FACTOR = 1.5  # expressions and jaw move offsets: the neutral reach, widened
-REACH_PAD = 0.01  # metres added to every reach
+REACH_FACTOR = 1.25  # expressions and jaw move offsets: the neutral reach, widened
+REACH_PAD = 0.005  # metres added to every reach
 
 
 def reach(offsets: np.ndarray, log_scales: np.ndarray) -> np.ndarray:

@@ -113,7 +113,7 @@ def run(args) -> Path:
     import torch
 
     from archhead_addon.avatar.runtime import AvatarRuntime
-    from archhead_addon.evaluate.__main__ import run_resolution
+    from archhead_addon.evaluate.__main__ import run_holdout, run_resolution
     from archhead_addon.evaluate.lods import evaluate_lods
     from archhead_addon.flame.model import load_model
     from archhead_addon.train.config import TrainConfig
@@ -127,7 +127,9 @@ def run(args) -> Path:
     watch = Stopwatch()
     model = load_model()
     runtime = AvatarRuntime.load(args.avatar, model)
-    test = FrameDataset(args.data, run_resolution(args), model, split="test")
+    test = FrameDataset(
+        args.data, run_resolution(args), model, split="test", holdout=run_holdout(args)
+    )
     count = len(test) if args.test_frames is None else min(args.test_frames, len(test))
     frames = [test[i] for i in range(count)]
     perceptual = ShiftTolerantLPIPS()
