@@ -191,7 +191,7 @@ def main(argv=None) -> None:
     )
     cycle = max(config.lpips_every, 1)  # whole cycles: as many ST-LPIPS steps as training
     steps = -(-args.steps // cycle) * cycle
-    means, paired = {}, {}
+    expected, paired = {}, {}
     for stage, first in ((1, 0), (2, config.stage1_steps)):
         times = {v: {k: [] for k in ("step", *PARTS)} for v in variants}
         for i in range(-1, steps):  # i = -1: an untimed warm-up of each variant
@@ -208,7 +208,9 @@ def main(argv=None) -> None:
                         times[name][k].append(v)
         module.texel_features = variants["after"]
         uses = [config.loss.lpips > 0 and (first + i) % cycle == 0 for i in range(steps)]
-        means[stage] = {v: {k: _expected(x, uses) for k, x in t.items()} for v, t in times.items()}
+        expected[stage] = {
+            v: {k: _expected(x, uses) for k, x in t.items()} for v, t in times.items()
+        }
         paired[stage] = {
             k: statistics.median(
                 b / a for b, a in zip(times["before"][k], times["after"][k], strict=True)
@@ -216,12 +218,12 @@ def main(argv=None) -> None:
             for k in ("step", "resample")
         }
     print(
-        f"Milliseconds per step, the mean of {steps} steps per stage ({steps // cycle} of them "
-        "with ST-LPIPS, as in training):\n"
+        f"Milliseconds per step, {steps} steps per stage: the medians of the steps with "
+        f"ST-LPIPS ({steps // cycle}) and without, weighted as training takes them:\n"
     )
     print("| stage | version | step | " + " | ".join(PARTS) + " | other |")
     print("|---|---|---:|" + "---:|" * (len(PARTS) + 1))
-    for stage, by_variant in means.items():
+    for stage, by_variant in expected.items():
         for name, m in by_variant.items():
             other = m["step"] - sum(m[k] for k in PARTS)
             cells = " | ".join(f"{m[k]:.1f}" for k in ("step", *PARTS))
@@ -231,7 +233,7 @@ def main(argv=None) -> None:
         "back to back):\n"
     )
     for stage, r in paired.items():
-        b, a = means[stage]["before"], means[stage]["after"]
+        b, a = expected[stage]["before"], expected[stage]["after"]
         print(
             f"- stage {stage}: step {r['step']:.2f}x ({b['step']:.0f} -> {a['step']:.0f} "
             f"ms), resample {r['resample']:.2f}x ({b['resample']:.1f} -> {a['resample']:.1f} ms)"
