@@ -1,7 +1,7 @@
 """Where a training step's time goes, before and after the matrix-product resample.
 
-    python benchmarks/training_profile.py [--data DIR] [--config cpu|FILE] [--steps 8]
-                                          [--threads 2]
+    python benchmarks/training_profile.py [--data DIR] [--config cpu|FILE]
+                                          [--state RUN/train_state.pt] [--steps 8] [--threads 2]
 
 Runs real steps of `train.loop.Trainer` (stage 1, then stage 2 from step `stage1_steps`) on
 a subject folder, alternating, step by step, the feature-field resample of this commit
@@ -156,6 +156,12 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", type=Path, default=DEFAULT_DATA, help="subject folder")
     p.add_argument("--config", default="cpu", help="training config file or preset")
+    p.add_argument(
+        "--state",
+        type=Path,
+        help="a run's train_state.pt to start from (read only; its config replaces --config): "
+        "an untrained avatar's Gaussians grow over its first steps and slow the kernel",
+    )
     p.add_argument("--steps", type=int, default=8, help="steps per stage and variant")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
@@ -170,23 +176,28 @@ def main(argv=None) -> None:
     from archhead_addon.train.dataset import FrameDataset
 
     torch.set_num_threads(args.threads)
-    config = TrainConfig.load(args.config)
+    state = None if args.state is None else loop.load_state(args.state)
+    config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
     model = load_model()
     dataset = FrameDataset(
         args.data, config.resolution, model, split="train", holdout=config.holdout
     )
     cpu = torch.device("cpu")
     frames = loop.frames_on_device(dataset, cpu)
-    with tempfile.TemporaryDirectory() as tmp:
-        trainer = loop.Trainer.create(
-            config, frames, model, dataset.sequence.shape[0], tmp, dataset.background, cpu
-        )
+    with tempfile.TemporaryDirectory() as tmp:  # nothing is saved: the steps are called alone
+        if state is None:
+            trainer = loop.Trainer.create(
+                config, frames, model, dataset.sequence.shape[0], tmp, dataset.background, cpu
+            )
+        else:
+            trainer = loop.Trainer.resume(state, tmp, frames, model, dataset.background, cpu)
     module = avatar_module()
     variants = {"before": interpolated_texel_features, "after": module.texel_features}
     profiler = Profiler(trainer)
     print(
         f"# Training-step profile: {args.data} ({len(frames)} training frames, "
-        f"{dataset.size[0]}x{dataset.size[1]} px), config {args.config}, "
+        f"{dataset.size[0]}x{dataset.size[1]} px), "
+        f"{f'the state {args.state}' if state else f'config {args.config}'}, "
         f"{torch.get_num_threads()} threads, {args.steps} steps per stage and variant\n"
     )
     cycle = max(config.lpips_every, 1)  # whole cycles: as many ST-LPIPS steps as training
