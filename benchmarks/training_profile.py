@@ -18,6 +18,7 @@ machine's load moved between the measurements. Ratios are of medians over the sa
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import statistics
 import tempfile
@@ -71,7 +72,17 @@ class Profiler:
         self.torch, self.trainer = torch, trainer
 
     def parts(self, step: int) -> dict[str, float]:
-        """Milliseconds of each part of `step`, each run alone."""
+        """Milliseconds of each part of `step`, each run alone; the avatar and Adam are left
+        as they were (the parts' stand-in losses must not train it: they grew the Gaussians,
+        and with them the kernel's time, tenfold in a few steps)."""
+        t = self.trainer
+        saved = copy.deepcopy((t.avatar.state_dict(), t.optimizer.state_dict()))
+        out = self._parts(step)
+        t.avatar.load_state_dict(saved[0])
+        t.optimizer.load_state_dict(saved[1])
+        return out
+
+    def _parts(self, step: int) -> dict[str, float]:
         torch, t = self.torch, self.trainer
         avatar, cfg = t.avatar, t.config
         out = dict.fromkeys(PARTS, 0.0)
