@@ -1,23 +1,25 @@
 """Where a training step's time goes, before and after the matrix-product resample.
 
     python benchmarks/training_profile.py [--data DIR] [--config cpu|FILE]
-                                          [--state RUN/train_state.pt] [--steps 8] [--threads 2]
+                                          [--avatar RUN/avatar.npz] [--steps 8] [--threads 2]
 
 Runs real steps of `train.loop.Trainer` (stage 1, then stage 2 from step `stage1_steps`) on
-a subject folder, alternating, step by step, the feature-field resample of this commit
-(`avatar.resample.texel_features`) with the one it replaced (F.interpolate per level, a
-channel-major blend, texels read by advanced indexing: `interpolated_texel_features`
-below). The split times each part alone, forward and backward, on the same frame and levels
-as the step: the resample; the rest of the avatar (FLAME, position map, PE, the heads: the
-"decoder"); the splat kernel; ST-LPIPS (on the steps that use it); Adam; and the data (the
-step's frame and levels; the frames are in memory from the start). "other" is what the step
-took beyond them (the losses, zeroing, autograd's own work) and goes negative when the
-machine's load moved between the measurements. Ratios are of medians over the same steps.
+a subject folder, each from the same avatar (the steps' updates are undone), alternating,
+step by step, the feature-field resample of this commit (`avatar.resample.texel_features`)
+with the one it replaced (F.interpolate per level, a channel-major blend, texels read by
+advanced indexing: `interpolated_texel_features` below). The split times each part alone,
+forward and backward, on the same frame and levels as the step: the resample; the rest of
+the avatar (FLAME, position map, PE, the heads: the "decoder"); the splat kernel; ST-LPIPS
+(on the steps that use it); Adam; and the data (the step's frame and levels; the frames are
+in memory from the start). "other" is what the step took beyond them (the losses, zeroing,
+autograd's own work) and goes negative when the machine's load moved between the
+measurements. Ratios are of medians over the same steps.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import os
 import statistics
@@ -71,16 +73,27 @@ class Profiler:
 
         self.torch, self.trainer = torch, trainer
 
+    def step(self, step: int) -> float:
+        """Milliseconds of the trainer's `step`."""
+        with self._unchanged():
+            self.trainer.step = step
+            return _ms(self.trainer.train_step)
+
     def parts(self, step: int) -> dict[str, float]:
-        """Milliseconds of each part of `step`, each run alone; the avatar and Adam are left
-        as they were (the parts' stand-in losses must not train it: they grew the Gaussians,
-        and with them the kernel's time, tenfold in a few steps)."""
+        """Milliseconds of each part of `step`, each run alone."""
+        with self._unchanged():
+            return self._parts(step)
+
+    @contextlib.contextmanager
+    def _unchanged(self):
+        """Leaves the avatar and Adam as they were, so that every step and part starts from
+        the same avatar (training an untrained one grows its Gaussians over the first steps,
+        and the kernel's time with them; the parts' stand-in losses did that tenfold)."""
         t = self.trainer
         saved = copy.deepcopy((t.avatar.state_dict(), t.optimizer.state_dict()))
-        out = self._parts(step)
+        yield
         t.avatar.load_state_dict(saved[0])
         t.optimizer.load_state_dict(saved[1])
-        return out
 
     def _parts(self, step: int) -> dict[str, float]:
         torch, t = self.torch, self.trainer
@@ -168,10 +181,10 @@ def main(argv=None) -> None:
     p.add_argument("--data", type=Path, default=DEFAULT_DATA, help="subject folder")
     p.add_argument("--config", default="cpu", help="training config file or preset")
     p.add_argument(
-        "--state",
+        "--avatar",
         type=Path,
-        help="a run's train_state.pt to start from (read only; its config replaces --config): "
-        "an untrained avatar's Gaussians grow over its first steps and slow the kernel",
+        help="a trained avatar.npz to time (default: an untrained one of the config), which "
+        "every timed step starts from: an untrained avatar's Gaussians are not a run's",
     )
     p.add_argument("--steps", type=int, default=8, help="steps per stage and variant")
     p.add_argument("--threads", type=int, default=2)
@@ -181,14 +194,14 @@ def main(argv=None) -> None:
 
     import torch
 
+    from archhead_addon.avatar.checkpoint import load_avatar
     from archhead_addon.flame.model import load_model
     from archhead_addon.train import loop
     from archhead_addon.train.config import TrainConfig
     from archhead_addon.train.dataset import FrameDataset
 
     torch.set_num_threads(args.threads)
-    state = None if args.state is None else loop.load_state(args.state)
-    config = TrainConfig.load(args.config) if state is None else loop.state_config(state)
+    config = TrainConfig.load(args.config)
     model = load_model()
     dataset = FrameDataset(
         args.data, config.resolution, model, split="train", holdout=config.holdout
@@ -196,19 +209,20 @@ def main(argv=None) -> None:
     cpu = torch.device("cpu")
     frames = loop.frames_on_device(dataset, cpu)
     with tempfile.TemporaryDirectory() as tmp:  # nothing is saved: the steps are called alone
-        if state is None:
+        if args.avatar is None:
             trainer = loop.Trainer.create(
                 config, frames, model, dataset.sequence.shape[0], tmp, dataset.background, cpu
             )
         else:
-            trainer = loop.Trainer.resume(state, tmp, frames, model, dataset.background, cpu)
+            avatar = load_avatar(args.avatar, model)
+            trainer = loop.Trainer(config, frames, avatar, tmp, dataset.background, cpu)
     module = avatar_module()
     variants = {"before": interpolated_texel_features, "after": module.texel_features}
     profiler = Profiler(trainer)
     print(
         f"# Training-step profile: {args.data} ({len(frames)} training frames, "
         f"{dataset.size[0]}x{dataset.size[1]} px), "
-        f"{f'the state {args.state}' if state else f'config {args.config}'}, "
+        f"config {args.config}, avatar {args.avatar or 'untrained'}, "
         f"{torch.get_num_threads()} threads, {args.steps} steps per stage and variant\n"
     )
     cycle = max(config.lpips_every, 1)  # whole cycles: as many ST-LPIPS steps as training
@@ -220,9 +234,7 @@ def main(argv=None) -> None:
             step = first + max(i, 0)
             for name, fn in variants.items():
                 module.texel_features = fn
-                trainer.step = step
-                step_ms = _ms(trainer.train_step)
-                trainer.step = step
+                step_ms = profiler.step(step)
                 parts = profiler.parts(step)
                 if i >= 0:
                     times[name]["step"].append(step_ms)

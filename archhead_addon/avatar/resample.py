@@ -4,12 +4,13 @@ texels the UV layout covers.
 
 The resize is two matrix products with the 1-D matrices of `bicubic.resize_matrix`, the
 numbers of F.interpolate(mode="bicubic", align_corners=False, antialias=False), which the
-tests hold it to. On a CPU, F.interpolate's backward scatters tap by tap and took about 4x
-as long as these products and theirs; a level already at S is not resized at all.
+tests hold it to. On a CPU, F.interpolate's bicubic backward scatters tap by tap; with these
+products and the row read below, a training step's resample took 2.6-4.3x less time
+(docs/training_profile.md). A level already at S is not resized at all.
 
 The blend is built texel-major, (S * S, C), so that reading the texels copies whole rows,
 and the read's backward writes each row once (the texels are distinct) instead of
-accumulating into a channel-major map: about 5x cheaper (benchmarks/training_profile.py).
+accumulating, column by column, into a channel-major map: several times cheaper.
 """
 
 from __future__ import annotations
