@@ -5,7 +5,7 @@ texels the UV layout covers.
 The resize is two matrix products with the 1-D matrices of `bicubic.resize_matrix`, the
 numbers of F.interpolate(mode="bicubic", align_corners=False, antialias=False), which the
 tests hold it to. On a CPU, F.interpolate's bicubic backward scatters tap by tap; with these
-products and the row read below, a training step's resample took 2.6-4.3x less time
+products and the row read below, a training step's resample took 2.5-4.4x less time
 (docs/training_profile.md). A level already at S is not resized at all.
 
 The blend is built texel-major, (S * S, C), so that reading the texels copies whole rows,
