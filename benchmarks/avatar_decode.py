@@ -92,9 +92,9 @@ def main(argv=None) -> None:
     print(f"## Numpy decode, 2 threads, median (min) of {args.repeats} after one warm-up\n")
     print(
         "| l | S | Gaussians | first call ms (builds the S cache) | fp32 ms | fp16 ms "
-        "| fp16 max error |"
+        "| fp16 / fp32 time | S cache MB fp32 / fp16 | fp16 max error |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     fp32 = {}
     for lod in (0.0, 0.25, 0.5, 0.75, 1.0):
         size = runtime.resolution(lod)
@@ -102,10 +102,11 @@ def main(argv=None) -> None:
         fp32[lod] = _timed(lambda lod=lod: runtime.decode(lod, **codes), args.repeats)
         fp16 = _timed(lambda lod=lod: runtime.decode(lod, precision="fp16", **codes), args.repeats)
         err = max(runtime.precision_error(lod, **codes).values())
+        cache_mb = [runtime.level(size, p)["first"].nbytes / 2**20 for p in ("fp32", "fp16")]
         print(
             f"| {lod:.2f} | {size} | {runtime.raster.table(size).count:,} | {build:.0f} | "
             f"{fp32[lod][0]:.1f} ({fp32[lod][1]:.1f}) | {fp16[0]:.1f} ({fp16[1]:.1f}) | "
-            f"{err:.1e} |"
+            f"{fp16[0] / fp32[lod][0]:.1f}x | {cache_mb[0]:.0f} / {cache_mb[1]:.0f} | {err:.1e} |"
         )
     errors = runtime.precision_error(0.0, **codes)
     print(

@@ -1,4 +1,5 @@
-"""LOD -> resolution (eq. 3), the blend weights (eq. 4-5) and the bicubic resampler."""
+"""LOD -> resolution (eq. 3), the blend weights (eq. 4-5) and the bicubic resamplers (numpy and
+torch), held to F.interpolate."""
 
 import math
 import warnings
@@ -10,6 +11,7 @@ import torch.nn.functional as F
 
 from archhead_addon.avatar.bicubic import resize
 from archhead_addon.avatar.lod import blend_weights, resolution_for_lod
+from archhead_addon.avatar.resample import resample_plan, texel_features
 
 
 def test_lod_to_resolution():
@@ -95,3 +97,56 @@ def test_bicubic_kernel_is_keys_with_a_minus_three_quarters_and_clamped_borders(
     assert idx[0].tolist() == [0, 0, 0, 1]
     np.testing.assert_allclose(w[0], [k(1.75), k(0.75), k(0.25), k(1.25)], atol=1e-6)
     assert np.allclose(w.sum(1), 1) and math.isclose(k(0), 1)
+
+
+def _interpolated_texels(features, levels, size, tau, texel):
+    """The field as F.interpolate computes it (the resize this project used before its
+    matrix form), read at the texels of a channel-major map."""
+    out = 0
+    for w, s in zip(blend_weights(levels, size, tau), levels, strict=True):
+        resized = F.interpolate(
+            features[str(s)][None], size=(size, size), mode="bicubic", align_corners=False
+        )[0]
+        out = out + float(w) * resized
+    return out.reshape(out.shape[0], -1)[:, texel].T
+
+
+@pytest.mark.parametrize("size", [32, 45, 64, 97, 128])
+def test_torch_resample_matches_interpolate_forward_and_backward(size):
+    levels, tau, c = (128, 64, 32), 0.35, 8
+    rng = np.random.default_rng(size)
+    texel = torch.from_numpy(np.sort(rng.choice(size * size, size * size // 2, replace=False)))
+    features = {
+        str(s): torch.from_numpy(rng.normal(size=(c, s, s)).astype(np.float32)).requires_grad_()
+        for s in levels
+    }
+    upstream = torch.from_numpy(rng.normal(size=(len(texel), c)).astype(np.float32))
+
+    def value_and_grads(fn):
+        out = fn()
+        grads = torch.autograd.grad(out, list(features.values()), upstream)
+        return out.detach(), grads
+
+    plan = resample_plan(levels, size, tau, "cpu")
+    out, grads = value_and_grads(lambda: texel_features(features, plan, texel))
+    ref, ref_grads = value_and_grads(
+        lambda: _interpolated_texels(features, levels, size, tau, texel)
+    )
+    assert out.shape == (len(texel), c) and out.is_contiguous()
+    torch.testing.assert_close(out, ref, atol=2e-6, rtol=1e-5)
+    for g, r in zip(grads, ref_grads, strict=True):
+        torch.testing.assert_close(g, r, atol=2e-5, rtol=1e-5)
+    # texels nobody reads get no gradient
+    unread = torch.ones(size * size, dtype=torch.bool)
+    unread[texel] = False
+    if size in levels:
+        assert grads[levels.index(size)].reshape(c, -1)[:, unread].abs().max() == 0
+
+
+def test_a_level_at_the_target_size_is_read_as_it_is():
+    f = torch.randn(4, 40, 40)
+    plan = resample_plan((40,), 40, 0.35, "cpu")
+    assert plan == (("40", 1.0, None),)
+    texel = torch.tensor([0, 7, 41, 1599])
+    out = texel_features({"40": f}, plan, texel)
+    assert torch.equal(out, f.reshape(4, -1)[:, texel].T)

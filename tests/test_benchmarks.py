@@ -47,3 +47,27 @@ def test_splat_kernel_benchmark_prints_its_table(repo_root, extra):
     ).stdout
     rows = [line for line in out.splitlines() if line.startswith("| 3,000 | 256²")]
     assert len(rows) == 1 and "Times in ms" in out
+
+
+def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_subject, tmp_path):
+    from training_subject import write_config
+
+    config = write_config(tmp_path / "tiny.json", stage1_steps=2, stage2_steps=2)
+    out = subprocess.run(
+        [sys.executable, "benchmarks/training_profile.py", "--data", str(tiny_subject)]
+        + ["--config", str(config), "--steps", "1", "--threads", "1"],
+        cwd=repo_root,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    ).stdout
+    rows = [line.split("|")[1:3] for line in out.splitlines() if line.startswith("| 1 |")]
+    rows += [line.split("|")[1:3] for line in out.splitlines() if line.startswith("| 2 |")]
+    assert [(s.strip(), v.strip()) for s, v in rows] == [
+        ("1", "before"),
+        ("1", "after"),
+        ("2", "before"),
+        ("2", "after"),
+    ]
+    assert re.search(r"stage 1: step [\d.]+x .* resample [\d.]+x", out)

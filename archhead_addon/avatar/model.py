@@ -53,7 +53,8 @@ from ..uv.layout import avatar_mesh
 from ..uv.raster import UVRaster, face_texel_scale, position_map
 from .config import QUAT_EPS, AvatarConfig
 from .gaussians import SH_C0, Gaussians, quat_multiply
-from .lod import blend_weights, resolution_for_lod
+from .lod import resolution_for_lod
+from .resample import resample_plan, texel_features
 
 MAX_LEVELS = 32  # per-resolution tables kept on the device (stage 2 samples every S)
 FEATURE_INIT_STD = 0.1
@@ -165,7 +166,8 @@ class ArchHeadAvatar(nn.Module):
 
     def level(self, size: int) -> dict[str, torch.Tensor]:
         """Per-resolution constants on the model's device: texels, face corners, barycentrics,
-        base log scale (texel size on the face). Kept for the MAX_LEVELS most recent sizes."""
+        base log scale (texel size on the face), the feature field's resample plan. Kept for
+        the MAX_LEVELS most recent sizes."""
         key = (size, self.identity_shape.device)
         if key in self._levels:
             self._levels.move_to_end(key)
@@ -183,18 +185,8 @@ class ArchHeadAvatar(nn.Module):
             "vert_idx": torch.from_numpy(self.mesh.faces[table.face]).to(device),
             "bary": torch.from_numpy(table.bary.astype(np.float32)).to(device),
             "base_log_scale": torch.from_numpy(base.astype(np.float32)).to(device),
+            "resample": resample_plan(self.config.levels, size, self.config.tau, device),
         }
-
-    def feature_map(self, size: int) -> torch.Tensor:
-        """(C, size, size): every level resized bicubically to size, blended by eq. 4-5."""
-        weights = blend_weights(self.config.levels, size, self.config.tau)
-        out = 0
-        for w, s in zip(weights, self.config.levels, strict=True):
-            resized = F.interpolate(
-                self.features[str(s)][None], size=(size, size), mode="bicubic", align_corners=False
-            )[0]
-            out = out + float(w) * resized
-        return out
 
     def drive(self, expr=None, jaw=None, eyes=None) -> torch.Tensor:
         """The driving code (K,) from expression (padded to n_expr), jaw and eyes."""
@@ -238,7 +230,7 @@ class ArchHeadAvatar(nn.Module):
         n = len(pos)
         parts = [self.encode(pos)]
         if cfg.levels:
-            parts.append(self.feature_map(size).reshape(cfg.feature_dim, -1)[:, lv["texel"]].T)
+            parts.append(texel_features(self.features, lv["resample"], lv["texel"]))
         parts += [self.drive(expr, jaw, eyes).expand(n, -1), pos.new_full((n, 1), l)]
         raw = self.decoder(torch.cat(parts, dim=1))
 

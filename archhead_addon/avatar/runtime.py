@@ -8,9 +8,12 @@ pushed through the feature columns of the fused first layer, `W1_feature @ featu
 code and l are the same for every texel, so they enter the first layer as one bias column
 (multiplying a constant row appended to the PE).
 
-fp16 path: weights, cached per-S terms, activations and raw outputs are held in half
-precision, every product and sum runs in float32 (numpy has no half-precision BLAS, so this
-saves memory, not time); `precision_error` reports its deviation from the fp32 path.
+fp16 path, storage only: weights, cached per-S terms, activations and raw outputs are held
+in half precision (as a half-precision GPU decoder holds them), every product and sum runs in
+float32. numpy has no half-precision arithmetic and converts element by element, so the path
+halves the per-S cache and costs time, 3-5x the fp32 decode (docs/bench_decode.md): it
+is there to measure what half precision costs in accuracy (`precision_error`), not to speed
+a display up.
 """
 
 from __future__ import annotations

@@ -1,0 +1,278 @@
+"""Where a training step's time goes, before and after the matrix-product resample.
+
+    python benchmarks/training_profile.py [--data DIR] [--config cpu|FILE]
+                                          [--avatar RUN/avatar.npz] [--steps 8] [--threads 2]
+
+Runs real steps of `train.loop.Trainer` (stage 1, then stage 2 from step `stage1_steps`) on
+a subject folder, each from the same avatar (the steps' updates are undone), alternating,
+step by step, the feature-field resample of this commit (`avatar.resample.texel_features`)
+with the one it replaced (F.interpolate per level, a channel-major blend, texels read by
+advanced indexing: `interpolated_texel_features` below). The split times each part alone,
+forward and backward, on the same frame and levels as the step: the resample; the rest of
+the avatar (FLAME, position map, PE, the heads: the "decoder"); the splat kernel; ST-LPIPS
+(on the steps that use it); Adam; and the data (the step's frame and levels; the frames are
+in memory from the start). "other" is what the step took beyond them (the losses, zeroing,
+autograd's own work) and goes negative when the machine's load moved between the
+measurements. Ratios are of medians over the same steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import copy
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from archhead_addon.avatar.lod import resolution_for_lod
+from archhead_addon.timing import restart_with_threads
+
+DEFAULT_DATA = Path("out/synth_track")  # scripts/synthetic_subject.py --frames 120 --size 256
+PARTS = ("resample", "decoder", "kernel", "ST-LPIPS", "Adam", "data")
+
+
+def interpolated_texel_features(features, plan, texel):
+    """The resample before the matrix form, for the 'before' column: each level through
+    F.interpolate (its own copy at S included), blended channel-major, texels indexed."""
+    import torch.nn.functional as F
+
+    key, _, a = plan[0]
+    size = features[key].shape[1] if a is None else a.shape[0]
+    out = 0
+    for key, weight, _ in plan:
+        resized = F.interpolate(
+            features[key][None], size=(size, size), mode="bicubic", align_corners=False
+        )[0]
+        out = out + weight * resized
+    return out.reshape(out.shape[0], -1)[:, texel].T
+
+
+def _expected(values, uses_lpips) -> float:
+    """A step's expected milliseconds, robust to the machine's load: the medians of the steps
+    with ST-LPIPS and of those without, weighted by their shares of the steps."""
+    total = 0.0
+    for want in (True, False):
+        group = [v for v, u in zip(values, uses_lpips, strict=True) if u == want]
+        if group:
+            total += len(group) / len(values) * statistics.median(group)
+    return total
+
+
+def _ms(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return 1e3 * (time.perf_counter() - start)
+
+
+class Profiler:
+    def __init__(self, trainer):
+        import torch
+
+        self.torch, self.trainer = torch, trainer
+
+    def step(self, step: int) -> float:
+        """Milliseconds of the trainer's `step`."""
+        with self._unchanged():
+            self.trainer.step = step
+            return _ms(self.trainer.train_step)
+
+    def parts(self, step: int) -> dict[str, float]:
+        """Milliseconds of each part of `step`, each run alone."""
+        with self._unchanged():
+            return self._parts(step)
+
+    @contextlib.contextmanager
+    def _unchanged(self):
+        """Leaves the avatar and Adam as they were, so that every step and part starts from
+        the same avatar (training an untrained one grows its Gaussians over the first steps,
+        and the kernel's time with them; the parts' stand-in losses did that tenfold)."""
+        t = self.trainer
+        saved = copy.deepcopy((t.avatar.state_dict(), t.optimizer.state_dict()))
+        yield
+        t.avatar.load_state_dict(saved[0])
+        t.optimizer.load_state_dict(saved[1])
+
+    def _parts(self, step: int) -> dict[str, float]:
+        torch, t = self.torch, self.trainer
+        avatar, cfg = t.avatar, t.config
+        out = dict.fromkeys(PARTS, 0.0)
+        box = {}
+        out["data"] = _ms(
+            lambda: box.update(frame=t.frames[t.frame_index(step)], lods=t.lods(step))
+        )
+        frame, lods = box["frame"], box["lods"]
+        h, w = frame.image.shape[:2]
+        lpips = cfg.loss.lpips > 0 and step % cfg.lpips_every == 0
+        for lod in lods:
+            lv = avatar.level(resolution_for_lod(lod, avatar.config.s_max, avatar.config.s_min)[1])
+
+            def resample(lv=lv):
+                feat = avatar_module().texel_features(avatar.features, lv["resample"], lv["texel"])
+                feat.backward(torch.ones_like(feat))
+
+            resample_ms = _ms(resample)
+            out["resample"] += resample_ms
+
+            def decode(lod=lod):
+                g = avatar(lod, **frame.codes)
+                loss = sum(
+                    getattr(g, k).square().mean()
+                    for k in ("means", "quats", "log_scales", "opacity_logits", "sh", "offsets")
+                )
+                loss.backward()
+                box["g"] = g
+
+            out["decoder"] += _ms(decode) - resample_ms
+            g = box["g"]
+            leaves = [
+                x.detach().requires_grad_()
+                for x in (g.means, g.quats, g.log_scales, g.opacity_logits, g.sh)
+            ]
+
+            def splat(leaves=leaves):
+                rgb = _render(t, leaves, frame, w, h)
+                (rgb - frame.image).square().mean().backward()
+                box["rgb"] = rgb.detach()
+
+            out["kernel"] += _ms(splat)
+            if lpips:
+                pred = box["rgb"].requires_grad_()
+
+                def perceptual(pred=pred):
+                    nchw = [x.permute(2, 0, 1)[None] for x in (pred, frame.image)]
+                    t.loss.perceptual(*nchw)[0].backward()
+
+                out["ST-LPIPS"] += _ms(perceptual)
+        out["Adam"] = _ms(t.optimizer.step)
+        t.optimizer.zero_grad(set_to_none=True)
+        return out
+
+
+def avatar_module():
+    from archhead_addon.avatar import model
+
+    return model
+
+
+def _render(trainer, leaves, frame, w, h):
+    from archhead_addon.splat import rasterization
+
+    means, quats, log_scales, opacity_logits, sh = leaves
+    return rasterization(
+        means,
+        quats,
+        log_scales,
+        opacity_logits,
+        sh,
+        frame.w2c,
+        frame.K,
+        w,
+        h,
+        background=trainer.background,
+        num_threads=trainer.config.threads,
+    ).rgb
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--data", type=Path, default=DEFAULT_DATA, help="subject folder")
+    p.add_argument("--config", default="cpu", help="training config file or preset")
+    p.add_argument(
+        "--avatar",
+        type=Path,
+        help="a trained avatar.npz to time (default: an untrained one of the config), which "
+        "every timed step starts from: an untrained avatar's Gaussians are not a run's",
+    )
+    p.add_argument("--steps", type=int, default=8, help="steps per stage and variant")
+    p.add_argument("--threads", type=int, default=2)
+    args = p.parse_args(argv)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the training command sets it
+    restart_with_threads(args.threads)
+
+    import torch
+
+    from archhead_addon.avatar.checkpoint import load_avatar
+    from archhead_addon.flame.model import load_model
+    from archhead_addon.train import loop
+    from archhead_addon.train.config import TrainConfig
+    from archhead_addon.train.dataset import FrameDataset
+
+    torch.set_num_threads(args.threads)
+    config = TrainConfig.load(args.config)
+    model = load_model()
+    dataset = FrameDataset(
+        args.data, config.resolution, model, split="train", holdout=config.holdout
+    )
+    cpu = torch.device("cpu")
+    frames = loop.frames_on_device(dataset, cpu)
+    with tempfile.TemporaryDirectory() as tmp:  # nothing is saved: the steps are called alone
+        if args.avatar is None:
+            trainer = loop.Trainer.create(
+                config, frames, model, dataset.sequence.shape[0], tmp, dataset.background, cpu
+            )
+        else:
+            avatar = load_avatar(args.avatar, model)
+            trainer = loop.Trainer(config, frames, avatar, tmp, dataset.background, cpu)
+    module = avatar_module()
+    variants = {"before": interpolated_texel_features, "after": module.texel_features}
+    profiler = Profiler(trainer)
+    print(
+        f"# Training-step profile: {args.data} ({len(frames)} training frames, "
+        f"{dataset.size[0]}x{dataset.size[1]} px), "
+        f"config {args.config}, avatar {args.avatar or 'untrained'}, "
+        f"{torch.get_num_threads()} threads, {args.steps} steps per stage and variant\n"
+    )
+    cycle = max(config.lpips_every, 1)  # whole cycles: as many ST-LPIPS steps as training
+    steps = -(-args.steps // cycle) * cycle
+    expected, paired = {}, {}
+    for stage, first in ((1, 0), (2, config.stage1_steps)):
+        times = {v: {k: [] for k in ("step", *PARTS)} for v in variants}
+        for i in range(-1, steps):  # i = -1: an untimed warm-up of each variant
+            step = first + max(i, 0)
+            for name, fn in variants.items():
+                module.texel_features = fn
+                step_ms = profiler.step(step)
+                parts = profiler.parts(step)
+                if i >= 0:
+                    times[name]["step"].append(step_ms)
+                    for k, v in parts.items():
+                        times[name][k].append(v)
+        module.texel_features = variants["after"]
+        uses = [config.loss.lpips > 0 and (first + i) % cycle == 0 for i in range(steps)]
+        expected[stage] = {
+            v: {k: _expected(x, uses) for k, x in t.items()} for v, t in times.items()
+        }
+        paired[stage] = {
+            k: statistics.median(
+                b / a for b, a in zip(times["before"][k], times["after"][k], strict=True)
+            )
+            for k in ("step", "resample")
+        }
+    print(
+        f"Milliseconds per step, {steps} steps per stage: the medians of the steps with "
+        f"ST-LPIPS ({steps // cycle}) and without, weighted as training takes them:\n"
+    )
+    print("| stage | version | step | " + " | ".join(PARTS) + " | other |")
+    print("|---|---|---:|" + "---:|" * (len(PARTS) + 1))
+    for stage, by_variant in expected.items():
+        for name, m in by_variant.items():
+            other = m["step"] - sum(m[k] for k in PARTS)
+            cells = " | ".join(f"{m[k]:.1f}" for k in ("step", *PARTS))
+            print(f"| {stage} | {name} | {cells} | {other:.1f} |")
+    print(
+        "\nbefore / after, the median of the per-step ratios (each step run both ways, "
+        "back to back):\n"
+    )
+    for stage, r in paired.items():
+        b, a = expected[stage]["before"], expected[stage]["after"]
+        print(
+            f"- stage {stage}: step {r['step']:.2f}x ({b['step']:.0f} -> {a['step']:.0f} "
+            f"ms), resample {r['resample']:.2f}x ({b['resample']:.1f} -> {a['resample']:.1f} ms)"
+        )
+
+
+if __name__ == "__main__":
+    main()
