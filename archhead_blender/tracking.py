@@ -75,9 +75,11 @@ def finish_tracking(context, run: TrackingRun) -> tuple[str, str]:
     STATE.tracking_run = None
     run.update()
     run.backend.close()
-    if run.backend.cancelled_at is not None:
-        return "INFO", "Tracking cancelled; nothing was written"
     tracking = run.out_dir / TRACKING_FILE
+    if run.backend.cancelled_at is not None:
+        if run.backend.returncode == 0 and tracking.is_file():  # done before the cancel came
+            return "INFO", f"Tracking had finished before Cancel: its output is in {run.out_dir}"
+        return "INFO", "Tracking cancelled; nothing was written"
     if run.backend.returncode != 0 or not tracking.is_file():
         reason = run.status.error or f"exit code {run.backend.returncode}"
         return "ERROR", f"tracking failed ({reason}); see {run.log}"

@@ -25,7 +25,7 @@ def current_tracking():
     return current_tracking()
 
 
-def track_from_dialog(ui, out_dir: Path):
+def track_from_dialog(ui, out_dir: Path, frames: int = FRAMES):
     """Track Video as its panel button runs it (invoke: the dialog, filled in), confirmed
     with Return where the dialog opened."""
     area = ui.area("VIEW_3D")
@@ -37,7 +37,7 @@ def track_from_dialog(ui, out_dir: Path):
         invoke=True,
         video=str(VIDEO),
         out_dir=str(out_dir),
-        frames=FRAMES,
+        frames=frames,
         size=SIZE,
     )
     yield 0.5
@@ -53,7 +53,9 @@ def track_from_dialog(ui, out_dir: Path):
 def cancel_half_way(ui):
     yield from ui.show_sidebar()
     out_dir = OUT / "cancelled"
-    run = yield from track_from_dialog(ui, out_dir)
+    # four times the frames: a fit long enough that the cancel lands in it on a fast machine
+    # too (with 8 frames it once finished and wrote before the cancel arrived)
+    run = yield from track_from_dialog(ui, out_dir, 4 * FRAMES)
     pid = run.backend.process.pid
     # half way: every frame detected, the fit (the longest stage) under way
     yield from ui.wait_until(lambda: run.status.stage == "fit", 180, "the fit to start")
