@@ -37,6 +37,9 @@ from .lod import blend_weights, resolution_for_lod
 F32, F16 = np.float32, np.float16
 PRECISIONS = ("fp32", "fp16")
 CHUNK = 8192  # texels per pass through the decoder (its widest activations stay in cache)
+# Culling pays when it leaves out more than this share's complement: below, the gathers of
+# the kept texels cost about what decoding the others would.
+CULL_WORTH = 0.9
 
 
 class AvatarRuntime:
@@ -130,12 +133,18 @@ class AvatarRuntime:
         shift = j0 + _code(translation, 3, "translation").astype(F32)[:, None]
         # channel-major (3, N) from here on: every row a contiguous attribute
         pos = np.einsum("nk,nkc->cn", level["bary"], head.vertices[0][level["vert_idx"]])
+        columns = None  # the texels decoded: all, or those the view keeps
         if view is not None:
             if "reach" not in level:
                 level["reach"] = self._reach(l, precision)
             keep = np.flatnonzero(view.visible(rot_m @ (pos - j0) + shift, level["reach"]))
-            level = {k: a[..., keep] if k in _CHANNEL_MAJOR else a[keep] for k, a in level.items()}
-            pos = pos[:, keep]
+            if len(keep) < CULL_WORTH * pos.shape[1]:
+                columns = keep
+                level = {
+                    k: a if k == "first" else a[..., keep] if k == "base_log_scale" else a[keep]
+                    for k, a in level.items()
+                }
+                pos = pos[:, keep]
         drive_in = np.concatenate(
             [
                 _code(expr, cfg.n_expr, "expr", pad=True),
@@ -148,6 +157,7 @@ class AvatarRuntime:
             level.get("first"),
             net.frame_bias(drive_in, l),
             colour_rows=3 * (degree + 1) ** 2,
+            columns=columns,
         )
 
         offsets = F32(cfg.offset_unit) * raw["offset"]
@@ -264,10 +274,12 @@ class _Network:
         return self.round(self.w_drive @ drive + F32(lod) * self.w_lod + self.b_first)
 
     def decode(
-        self, pe: np.ndarray, first, frame_bias: np.ndarray, colour_rows: int
+        self, pe: np.ndarray, first, frame_bias: np.ndarray, colour_rows: int, columns=None
     ) -> dict[str, np.ndarray]:
         """Raw head outputs, (width, N) each, from the PE (pe_dim + 1, N); the colour head's
-        first `colour_rows` outputs only (its SH coefficients are coefficient-major)."""
+        first `colour_rows` outputs only (its SH coefficients are coefficient-major).
+        `columns`: the texels of `first` that the PE's columns are (culling), gathered chunk
+        by chunk rather than copied whole."""
         n = pe.shape[1]
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
         layers = dict(self.layers)
@@ -278,7 +290,7 @@ class _Network:
             cols = slice(s, min(s + CHUNK, n))
             h = w_in @ self.round(pe[:, cols])
             if first is not None:
-                h += first[:, cols]
+                h += first[:, cols] if columns is None else first[:, columns[cols]]
             _relu_(h)
             h = self.round(h)
             for name, (hidden, (w_out, b_out)) in layers.items():
@@ -292,9 +304,6 @@ class _Network:
                 np.matmul(w_out, x, out=y)
                 y += b_out
         return {name: self.round(y) for name, y in out.items()}
-
-
-_CHANNEL_MAJOR = ("first", "base_log_scale")  # level arrays indexed (..., texel)
 
 
 def _relu_(x: np.ndarray) -> None:
