@@ -93,11 +93,22 @@ def saved_scene(blender_session, ui_data):
 
 @pytest.fixture(scope="session")
 def tiny_config() -> Path:
-    """The training tests' tiny config (tests/training_subject.py) with room to cancel."""
+    """The tiny config (tests/training_subject.py) for runs that go to the end (the demo)."""
     from training_subject import TINY_CONFIG
 
     path = OUT / "data" / "tiny.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    # every run here is cancelled or quit: steps to spare at any speed (0.02-0.05 s each)
+    path.write_text(json.dumps({**TINY_CONFIG, "stage1_steps": 600, "checkpoint_every": 50}))
+    return path
+
+
+@pytest.fixture(scope="session")
+def cancelled_config() -> Path:
+    """The tiny config for runs that are cancelled or quit: steps to spare at any speed (at
+    0.02 s a step, 600 once finished before the quit arrived)."""
+    from training_subject import TINY_CONFIG
+
+    path = OUT / "data" / "tiny_long.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({**TINY_CONFIG, "stage1_steps": 20000, "checkpoint_every": 50}))
     return path

@@ -28,7 +28,7 @@ def tiny_subject(blender_session):
     return folder
 
 
-def test_train_progress_cancel_and_undo(blender_session, tiny_subject, tiny_config):
+def test_train_progress_cancel_and_undo(blender_session, tiny_subject, cancelled_config):
     from ui_session import OUT
 
     out = OUT / "training"
@@ -36,14 +36,14 @@ def test_train_progress_cancel_and_undo(blender_session, tiny_subject, tiny_conf
         shutil.rmtree(out)
     out.mkdir(parents=True)
     result = blender_session.ui(
-        "train_workflow.py", out, str(tiny_subject), str(tiny_config), str(out / "run")
+        "train_workflow.py", out, str(tiny_subject), str(cancelled_config), str(out / "run")
     )
     assert result["data"]["gaussians"] > 0
     assert (out / "run" / "train.log").is_file()
 
 
 def test_quitting_during_training_saves_a_checkpoint_and_says_how_to_resume(
-    blender_session, tiny_subject, tiny_config
+    blender_session, tiny_subject, cancelled_config
 ):
     from ui_session import OUT
 
@@ -51,7 +51,7 @@ def test_quitting_during_training_saves_a_checkpoint_and_says_how_to_resume(
     if out.exists():
         shutil.rmtree(out)
     run = out / "run"
-    blender_session.ui("train_quit.py", out, str(tiny_subject), str(tiny_config), str(run))
+    blender_session.ui("train_quit.py", out, str(tiny_subject), str(cancelled_config), str(run))
     log = (run / "train.log").read_text()
     assert '"event": "interrupted"' in log and "[exit code 130]" in log, log[-2000:]
     assert (run / "avatar.npz").is_file()
@@ -64,7 +64,7 @@ def test_quitting_during_training_saves_a_checkpoint_and_says_how_to_resume(
     assert step > 0
     # ... and doing so goes on from there
     resumed = blender_session.ui(
-        "train_resume.py", out, str(tiny_subject), str(tiny_config), str(run), str(step)
+        "train_resume.py", out, str(tiny_subject), str(cancelled_config), str(run), str(step)
     )
     assert resumed["data"]["first_step"] >= step
     starts = re.findall(r'"event": "start", "step": (\d+)', (run / "train.log").read_text())
