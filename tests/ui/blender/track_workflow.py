@@ -53,14 +53,19 @@ def track_from_dialog(ui, out_dir: Path, frames: int = FRAMES):
 def cancel_half_way(ui):
     yield from ui.show_sidebar()
     out_dir = OUT / "cancelled"
-    # four times the frames: a fit long enough that the cancel lands in it on a fast machine
-    # too (with 8 frames it once finished and wrote before the cancel arrived)
+    # four times the frames, cancelled half way through detecting them: the fit and the
+    # writing take seconds, and a cancel sent once the fit had started (after a screenshot)
+    # once arrived after the run had finished
     run = yield from track_from_dialog(ui, out_dir, 4 * FRAMES)
     pid = run.backend.process.pid
-    # half way: every frame detected, the fit (the longest stage) under way
-    yield from ui.wait_until(lambda: run.status.stage == "fit", 180, "the fit to start")
-    ui.screenshot("tracking_progress", area_type="VIEW_3D")
+
+    def half_detected():
+        s = run.status
+        return s.stage == "fit" or (s.stage == "detect" and s.step >= s.total // 2 > 0)
+
+    yield from ui.wait_until(half_detected, 180, "half the frames detected", poll=0.1)
     ui.op("archhead.cancel_tracking")
+    ui.screenshot("tracking_progress", area_type="VIEW_3D")
     yield from ui.wait_until(lambda: current_tracking() is None, 60, "the run to stop")
     yield 0.5
     check(not os.path.exists(f"/proc/{pid}"), f"tracking backend {pid} still running")
