@@ -9,6 +9,7 @@ exits with status 2 and one `error:` line; input warnings print as `warning:` li
 from __future__ import annotations
 
 import argparse
+import signal
 import subprocess
 import sys
 
@@ -86,6 +87,10 @@ def main(argv=None) -> int:
     if rest and not getattr(args, "passes_on", False):
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     args.options = rest
+    # Ctrl-C and Blender's Cancel (SIGINT) stop the command even when it was started from a
+    # process that ignores SIGINT (a shell's background job, and Blender started as one):
+    # an ignored SIGINT is inherited, and a cancelled tracking once ran on to the end.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     return run_command(lambda: args.run(args))
 
 

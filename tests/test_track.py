@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import signal
 import subprocess
 import sys
 import warnings
@@ -140,6 +141,28 @@ def test_command_line_writes_progress_and_a_folder(media, tmp_path):
     report = json.loads((out / "tracking_report.json").read_text())
     assert report["frames_kept"] + len(report["dropped"]) == 12
     assert len(list((out / "frames").glob("*.png"))) == report["frames_kept"]
+
+
+def test_sigint_stops_the_tracker_even_when_its_parent_ignores_it(media, tmp_path):
+    """Blender's Cancel sends SIGINT; a Blender started as a background job ignores SIGINT
+    and its children inherit that: the tracker once ran on and wrote its folder."""
+    out = tmp_path / "clip"
+    command = [sys.executable, "-m", "archhead_addon", "track", str(media / "single_face.mp4")]
+    command += ["--out", str(out), "--frames", "40", "--size", "128", "--progress-json"]
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    for line in process.stdout:  # the first detected frame: the run is under way
+        if '"stage": "detect"' in line:
+            break
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130 and "interrupted" in err, err[-2000:]
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("name", ["no_face.mp4", "truncated", "not_a_video"])

@@ -1,4 +1,5 @@
-"""How every command line reports bad input: `warning:` lines, one `error:` line, exit 2."""
+"""How every command line reports bad input: `warning:` lines, one `error:` line, exit 2;
+and Ctrl-C (or a backend's cancel): one `interrupted` line, exit 130, as a shell reports it."""
 
 from __future__ import annotations
 
@@ -19,3 +20,6 @@ def run_command(command: Callable[[], int | None]) -> int:
         except InputError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            return 130
