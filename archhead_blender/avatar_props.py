@@ -96,7 +96,7 @@ class ArchHeadAvatarSettings(bpy.types.PropertyGroup):
     )
     cull: bpy.props.EnumProperty(
         update=_tag,
-        name="Cull to camera",
+        name="Culling",
         default="RENDER",
         description="Leave out, before decoding, the Gaussians the scene camera cannot see",
         items=(
