@@ -96,7 +96,8 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
     if len(spaces) > 1:  # one image blends in one space: the older avatars' look changes
         print(f"ArchHead: avatars of both colour spaces in one exact render; blending {space}")
     for obj in avatars:  # every avatar in Blender's world space, then one image of them all
-        _, splat = frame_to_show(obj, scene, depsgraph, culled=True)
+        culled = obj.archhead_avatar.cull != "OFF"  # an exact render is a render
+        _, splat = frame_to_show(obj, scene, depsgraph, culled=culled)
         parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
     camera = blender_camera(scene)
     raster = render_from_blender_camera(
