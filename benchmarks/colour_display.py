@@ -14,11 +14,12 @@ column; the second is what it showed before (docs/training.md, "Colour").
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--avatar", required=True)
+    parser.add_argument("--avatar", type=Path, required=True)
     parser.add_argument("--data", required=True)
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--lods", default="0,0.5,1")
@@ -28,6 +29,7 @@ def main(argv=None) -> None:
     import torch
 
     from archhead_addon.avatar.runtime import AvatarRuntime
+    from archhead_addon.evaluate.__main__ import run_config
     from archhead_addon.evaluate.metrics import psnr
     from archhead_addon.evaluate.render import DRIVING_CODES
     from archhead_addon.flame.model import load_model
@@ -38,7 +40,7 @@ def main(argv=None) -> None:
 
     model = load_model()
     runtime = AvatarRuntime.load(args.avatar, model)
-    run = run_config(args.avatar)
+    run = run_config(args)  # the training run's config.json beside the avatar
     test = FrameDataset(
         args.data,
         run.get("resolution", 256),
@@ -82,15 +84,6 @@ def main(argv=None) -> None:
             scores.append(row)
         full_db, dc_db = np.mean(scores, axis=0)
         print(f"| {lod:g} | {full_db:.2f} | {dc_db:.2f} | {np.mean(levels):.1f} |")
-
-
-def run_config(avatar) -> dict:
-    """The training run's config.json beside the avatar ({} if none)."""
-    import json
-    from pathlib import Path
-
-    config = Path(avatar).with_name("config.json")
-    return json.loads(config.read_text()) if config.is_file() else {}
 
 
 if __name__ == "__main__":

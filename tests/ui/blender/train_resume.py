@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ui_steps  # noqa: E402
 from ui_driver import check, run_steps, script_args  # noqa: E402
 
 SUBJECT, CONFIG, RUN = (Path(p) for p in script_args()[:3])
@@ -18,16 +19,7 @@ def resume(ui):
     from archhead_blender.training import current_run
 
     ui.op("archhead.import_sequence", filepath=str(SUBJECT / "tracking.npz"))
-    ui.op(
-        "archhead.train_avatar",
-        frames_dir=str(SUBJECT / "frames"),
-        tracking=str(SUBJECT / "tracking.npz"),
-        out_dir=str(RUN),
-        base_config=str(CONFIG),
-        resume=True,
-    )
-    run = current_run()
-    check(run is not None, "no training run after Train Avatar with Resume")
+    run = ui_steps.start_training(ui, SUBJECT, CONFIG, RUN, resume=True)
     yield from ui.wait_until(lambda: run.status.total > 0, 120, "the resumed run to start")
     first = run.status.step
     ui.data["first_step"] = first

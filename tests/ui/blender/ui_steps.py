@@ -88,9 +88,10 @@ def dolly_camera(scene, head, far: float, near: float, name="ui_dolly"):
     return camera
 
 
-def start_training(ui, subject: Path, config: Path, out: Path):
-    """Train Avatar on a tracked folder (frames/, tracking.npz) with a base config; returns
-    the run, its backend's pid kept in ui.data for the orphan check."""
+def start_training(ui, subject: Path, config: Path, out: Path, resume: bool = False):
+    """Train Avatar on a tracked folder (frames/, tracking.npz) with a base config (with
+    `resume`, Resume ticked); returns the run, its backend's pid kept in ui.data for the
+    orphan check."""
     from archhead_blender.training import current_run
 
     ui.op(
@@ -99,8 +100,9 @@ def start_training(ui, subject: Path, config: Path, out: Path):
         tracking=str(subject / "tracking.npz"),
         out_dir=str(out),
         base_config=str(config),
+        **({"resume": True} if resume else {}),  # unset otherwise, as the dialog leaves it
     )
     run = current_run()
-    check(run is not None, "no training run after Train Avatar")
+    check(run is not None, f"no training run after Train Avatar{' with Resume' * resume}")
     ui.data["backend_pid"] = run.backend.process.pid
     return run
