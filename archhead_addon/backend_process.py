@@ -48,9 +48,19 @@ def train_command(python: str, data_dir, out_dir, config=None, resume: bool = Fa
     return cmd
 
 
-def track_command(python: str, source, out_dir, frames: int = 0, size: int = 512) -> list:
+def track_command(
+    python: str,
+    source,
+    out_dir,
+    frames: int = 0,
+    size: int = 512,
+    photometric: bool = True,
+    static_offset: bool = False,
+) -> list:
     cmd = [str(python), "-m", "archhead_addon", "track", str(source), "--out", str(out_dir)]
     cmd += ["--size", str(size), "--progress-json"]
+    cmd += [] if photometric else ["--no-photometric"]
+    cmd += ["--static-offset"] if static_offset else []
     return cmd + (["--frames", str(frames)] if frames > 0 else [])
 
 

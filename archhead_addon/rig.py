@@ -54,6 +54,7 @@ class RigAnimation:
     bone_locs: np.ndarray  # (T,5,3) pose-bone locations
     pose_feature: np.ndarray  # (T,36) the pose correctives' values, vec(R_i - I), FLAME order
     identity_shape: np.ndarray  # (S,)
+    identity_offset: np.ndarray | None  # (V,3) the sequence's static offset, if it has one
     # The expression components (columns of expr) the sequence moves: the only ones given a
     # shape key; the others stay zero on every frame, so their keys would only cost memory.
     used_expr: np.ndarray  # (U,) int
@@ -68,8 +69,10 @@ def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnima
     identity = shape[0] if shape.ndim == 2 else shape
     n_s = identity.shape[0]
     rest = model.v_template + model.shapedirs[:, :, :n_s] @ identity
-    if getattr(seq, "static_offset", None) is not None:
-        rest = rest + np.asarray(seq.static_offset).reshape(-1, 3)[: model.n_verts]
+    offset = getattr(seq, "static_offset", None)
+    if offset is not None:
+        offset = np.asarray(offset, dtype=np.float64).reshape(-1, 3)[: model.n_verts]
+        rest = rest + offset
     rest_joints = model.j_regressor @ rest
     e0 = model.n_shape
     expr_dirs = np.moveaxis(model.shapedirs[:, :, e0 : e0 + n_expr], 2, 0)  # (E,V,3)
@@ -91,6 +94,7 @@ def rig_animation(model: FlameModel, seq, n_expr: int | None = None) -> RigAnima
         bone_locs=locs,
         pose_feature=(rot[:, 1:] - np.eye(3)).reshape(len(rot), -1),
         identity_shape=identity,
+        identity_offset=offset,
         used_expr=used,
     )
 

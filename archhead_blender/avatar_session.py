@@ -54,6 +54,18 @@ def base_model(path: str = "") -> FlameModel:
     return STATE.base_models[key]
 
 
+def head_identity(head) -> dict:
+    """The imported head's identity as checkpoint fields: its shape code and its static
+    offset (none when its tracking had none)."""
+    offset = head.get("archhead_identity_offset")
+    return {
+        "identity_shape": np.asarray(head["archhead_identity"], np.float32),
+        "identity_offset": None
+        if offset is None
+        else np.asarray(offset, np.float32).reshape(-1, 3),
+    }
+
+
 class AvatarSession:
     def __init__(self, obj):
         settings = obj.archhead_avatar
@@ -61,8 +73,7 @@ class AvatarSession:
         path = Path(bpy.path.abspath(settings.checkpoint))
         ckpt = read_checkpoint(path)
         if settings.identity == "HEAD" and settings.head is not None:
-            identity = np.asarray(settings.head["archhead_identity"], np.float32)
-            ckpt = replace(ckpt, identity_shape=identity)
+            ckpt = replace(ckpt, **head_identity(settings.head))
         self.runtime = AvatarRuntime(ckpt, base_model(flame_model_path()), path)
         self.n_expr = ckpt.config.n_expr
         # The SH bands the display shows: all with view-dependent colour, else the DC term
@@ -71,6 +82,8 @@ class AvatarSession:
         self.joint_dirs = expression_joint_dirs(self.runtime.mesh, self.runtime.mesh.n_expr)
         h = hashlib.sha1(f"{file_digest(path)}/{PRECISION}/{self.sh_degree}/".encode())
         h.update(np.ascontiguousarray(ckpt.identity_shape, np.float32).tobytes())
+        if ckpt.identity_offset is not None:
+            h.update(np.ascontiguousarray(ckpt.identity_offset, np.float32).tobytes())
         self.digest = h.hexdigest()
         self.memory = MemoryCache(settings.memory_mb << 20)
         self.disk = _disk_cache(settings)

@@ -291,6 +291,8 @@ def _build_camera(scene, seq, frames, name, created):
 def _store_codes(head, arm_obj, model, rig, seq, info):
     """What the decoder and the N-panel read back: identity, model, sequence facts."""
     head["archhead_identity"] = rig.identity_shape.astype(np.float32).tolist()
+    if rig.identity_offset is not None:  # the avatar on this head uses it too
+        head["archhead_identity_offset"] = rig.identity_offset.astype(np.float32).ravel().tolist()
     head["archhead_model_id"] = model.model_id
     head["archhead_n_expr"] = int(rig.expr.shape[1])
     for k, v in info.items():

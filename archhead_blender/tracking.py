@@ -54,13 +54,23 @@ def current_tracking() -> TrackingRun | None:
     return STATE.tracking_run
 
 
-def start_tracking(context, source, out_dir, frames: int = 0, size: int = 512) -> TrackingRun:
+def start_tracking(
+    context,
+    source,
+    out_dir,
+    frames: int = 0,
+    size: int = 512,
+    photometric: bool = True,
+    static_offset: bool = False,
+) -> TrackingRun:
     if current_tracking() is not None:
         raise ValueError("a tracking run is already going; cancel it first")
     source, out_dir = Path(source).resolve(), Path(out_dir).resolve()
     if not source.exists():
         raise ValueError(f"{source}: not found")
-    command = track_command(backend_python(context), source, out_dir, frames, size)
+    command = track_command(
+        backend_python(context), source, out_dir, frames, size, photometric, static_offset
+    )
     model = flame_model_path(context)
     if model:
         command += ["--flame", bpy.path.abspath(model)]

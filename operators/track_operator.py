@@ -33,6 +33,18 @@ class ARCHHEAD_OT_track_video(BackendWatch, bpy.types.Operator):
         name="Frames", min=0, default=0, description="Track only the first N frames (0: all)"
     )
     size: bpy.props.IntProperty(name="Size", min=64, max=2048, default=512)
+    photometric: bpy.props.BoolProperty(
+        name="Refine on the frames",
+        default=True,
+        description="After the landmark fit, refine the tracking against the frames' colours "
+        "(one texture for the whole clip)",
+    )
+    static_offset: bpy.props.BoolProperty(
+        name="Static offset",
+        default=False,
+        description="Let the refinement move the head's vertices where the shape space cannot "
+        "reach the person",
+    )
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self, width=420)
@@ -48,6 +60,8 @@ class ARCHHEAD_OT_track_video(BackendWatch, bpy.types.Operator):
                 bpy.path.abspath(self.out_dir).rstrip("/\\"),
                 self.frames,
                 self.size,
+                self.photometric,
+                self.static_offset,
             )
         except (OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))

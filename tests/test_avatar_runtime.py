@@ -11,6 +11,7 @@ from test_avatar_model import ATTRS, frame_codes, make_avatar
 from test_uv_sphere_head import sphere_head
 
 from archhead_addon.avatar.checkpoint import save_avatar
+from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.avatar.config import ablation
 from archhead_addon.avatar.runtime import AvatarRuntime
 
@@ -145,3 +146,27 @@ def test_fewer_sh_bands_and_culling_decode_subsets_of_the_full_frame(tmp_path):
     cam = full.means[dropped] @ w2c[:3, :3].T + w2c[:3, 3]
     outside = np.abs(cam[:, :2]).max(axis=1) / cam[:, 2]
     assert len(dropped) and (outside > 50 / 2000).all()
+
+
+def test_identity_offset_moves_the_avatar_alike_in_torch_numpy_and_the_checkpoint(tmp_path):
+    """A tracking's static offset becomes part of the avatar's identity (avatar/identity.py):
+    saved with it, and applied the same way by the torch model and the numpy runtime."""
+    head = sphere_head()
+    offset = np.zeros((head.n_verts, 3))
+    offset[: head.n_verts // 2, 2] = 0.004  # half the head pushed 4 mm forward
+    plain = make_avatar(seed=7)
+    moved = make_avatar(seed=7)
+    moved = type(moved)(
+        moved.mesh, moved.identity_shape.numpy(), moved.config, moved.base_model_id, offset
+    )
+    moved.load_state_dict(plain.state_dict())
+    save_avatar(tmp_path / "a.npz", moved)
+    runtime = AvatarRuntime.load(tmp_path / "a.npz", flame=head)
+    np.testing.assert_allclose(read_checkpoint(tmp_path / "a.npz").identity_offset, offset)
+    _assert_agree(moved, runtime, 0.5, frame_codes(seed=8))
+    with torch.no_grad():  # FLAME's static offset: added to the template before posing
+        codes = {"shape": moved.identity_shape[None]}
+        verts = moved.flame(**codes)[0] - plain.flame(**codes)[0]
+        shift = (moved(0.0).means - plain(0.0).means).norm(dim=1)
+    np.testing.assert_allclose(verts[: head.n_verts].numpy(), offset, atol=1e-6)
+    assert shift.max() > 0.003 and (shift < 1e-6).float().mean() > 0.3  # the other half stays

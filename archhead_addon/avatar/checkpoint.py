@@ -23,6 +23,7 @@ def save_avatar(path, avatar: ArchHeadAvatar) -> None:
             uv_faces=avatar.mesh.uv_faces,
             identity_shape=avatar.identity_shape.detach().cpu().numpy(),
             params=params,
+            identity_offset=avatar.identity_offset,
         ),
     )
 
@@ -32,7 +33,9 @@ def load_avatar(path, flame=None, device="cpu") -> ArchHeadAvatar:
     a file, or None for the built-in one)."""
     ckpt = read_checkpoint(path)
     mesh = checkpoint_mesh(ckpt, flame, path)
-    avatar = ArchHeadAvatar(mesh, ckpt.identity_shape, ckpt.config, ckpt.model_id)
+    avatar = ArchHeadAvatar(
+        mesh, ckpt.identity_shape, ckpt.config, ckpt.model_id, ckpt.identity_offset
+    )
     state = {k: torch.from_numpy(v) for k, v in ckpt.params.items()}
     state["identity_shape"] = torch.from_numpy(ckpt.identity_shape)
     avatar.load_state_dict(state, strict=True)

@@ -9,6 +9,8 @@ Keys (format version 1):
   uv, uv_faces    the layout of the avatar mesh (model + teeth), so no UV generator is needed
                   where the avatar is used (Blender's Python has no xatlas)
   identity_shape  (n_shape,) the avatar's FLAME identity code
+  identity_offset optional (V,3) metres: the tracking's per-vertex static offset of the
+                  identity, V the vertices of the model before teeth (identity.py)
   checksum        sha256 of the other keys (io/checksum.py); files from before it lack it
   param/<name>    float32, every learned array of config.parameter_shapes: the feature field
                   (param/features.<S>), the mapping network and the decoder
@@ -43,6 +45,7 @@ class AvatarCheckpoint:
     uv_faces: np.ndarray
     identity_shape: np.ndarray
     params: dict[str, np.ndarray]
+    identity_offset: np.ndarray | None = None
 
     @property
     def uv_layout_id(self) -> str:
@@ -61,6 +64,8 @@ def write_checkpoint(path, ckpt: AvatarCheckpoint) -> None:
         "uv_faces": np.asarray(ckpt.uv_faces, np.int64),
         "identity_shape": np.asarray(ckpt.identity_shape, np.float32),
     }
+    if ckpt.identity_offset is not None:
+        arrays["identity_offset"] = np.asarray(ckpt.identity_offset, np.float32)
     arrays.update({f"param/{k}": np.asarray(v, np.float32) for k, v in ckpt.params.items()})
     save_npz_atomic(path, **with_checksum(arrays))
 
@@ -103,6 +108,7 @@ def read_checkpoint(path) -> AvatarCheckpoint:
         uv_faces=get("uv_faces", "iu"),
         identity_shape=get("identity_shape", "f"),
         params=params,
+        identity_offset=get("identity_offset", "f") if "identity_offset" in arrays else None,
     )
     stored_id = str(get("uv_layout_id", "U"))
     _check_params(path, config, params)
@@ -110,11 +116,17 @@ def read_checkpoint(path) -> AvatarCheckpoint:
     check_range(ckpt.identity_shape, path, "identity_shape", plausible=20.0, reason=_SIGMAS)
     if ckpt.identity_shape.ndim != 1:
         raise InputError(path, "identity_shape", "expected a finite 1-D array")
+    offset = ckpt.identity_offset
+    if offset is not None:
+        if offset.ndim != 2 or offset.shape[1] != 3:
+            raise InputError(path, "identity_offset", f"expected (V, 3), found {offset.shape}")
+        check_range(offset, path, "identity_offset", plausible=0.05, reason=_METRES)
     verify(arrays, path)
     return ckpt
 
 
 _SIGMAS = "FLAME coefficients are in standard deviations"
+_METRES = "a static offset is metres on a head some 0.2 m across"
 
 
 def _check_layout(path, ckpt: AvatarCheckpoint, stored_id: str) -> None:
@@ -171,6 +183,12 @@ def checkpoint_mesh(ckpt: AvatarCheckpoint, flame=None, path=None) -> FlameModel
     if len(ckpt.uv_faces) != len(mesh.faces):
         raise InputError(
             path, "uv_faces", f"{len(ckpt.uv_faces)} UV faces for a mesh of {len(mesh.faces)} faces"
+        )
+    if ckpt.identity_offset is not None and len(ckpt.identity_offset) != base.n_verts:
+        raise InputError(
+            path,
+            "identity_offset",
+            f"{len(ckpt.identity_offset)} vertices, the model has {base.n_verts}",
         )
     if len(ckpt.identity_shape) > base.n_shape:
         raise InputError(

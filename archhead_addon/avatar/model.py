@@ -53,6 +53,7 @@ from ..uv.layout import avatar_mesh
 from ..uv.raster import UVRaster, face_texel_scale, position_map
 from .config import QUAT_EPS, AvatarConfig
 from .gaussians import SH_C0, Gaussians, quat_multiply
+from .identity import offset_mesh
 from .lod import resolution_for_lod
 from .resample import resample_plan, texel_features
 
@@ -93,12 +94,21 @@ class Decoder(nn.Module):
 
 
 class ArchHeadAvatar(nn.Module):
-    def __init__(self, mesh: FlameModel, identity_shape, config: AvatarConfig, base_model_id: str):
+    def __init__(
+        self,
+        mesh: FlameModel,
+        identity_shape,
+        config: AvatarConfig,
+        base_model_id: str,
+        identity_offset=None,
+    ):
+        """`identity_offset`: (V_base,3) metres, the tracking's static offset (identity.py)."""
         super().__init__()
         if mesh.uv is None:
             raise ValueError("the avatar mesh needs a UV layout (see uv.layout.avatar_mesh)")
         self.config, self.mesh, self.base_model_id = config, mesh, base_model_id
-        self.flame = FlameLayer(mesh)
+        self.identity_offset = None if identity_offset is None else np.asarray(identity_offset)
+        self.flame = FlameLayer(offset_mesh(mesh, self.identity_offset))
         self.raster = UVRaster(mesh.uv, mesh.uv_faces)
         self.face_scale = face_texel_scale(mesh.v_template, mesh.faces, mesh.uv, mesh.uv_faces)
         self.register_buffer(
@@ -131,20 +141,21 @@ class ArchHeadAvatar(nn.Module):
         config: AvatarConfig | None = None,
         uv_obj=None,
         cache=None,
+        identity_offset=None,
     ) -> ArchHeadAvatar:
         """A fresh avatar for `model` (UV layout resolved, teeth added); config defaults to
         the paper's with the model's expression count, and is completed with the head centre
         and, when the model has an albedo, its mean colour."""
         mesh = avatar_mesh(model, uv_obj, cache)
         shape = np.zeros(model.n_shape) if identity_shape is None else np.asarray(identity_shape)
-        rest = flame_forward(mesh, shape=shape)[0]
+        rest = flame_forward(offset_mesh(mesh, identity_offset), shape=shape)[0]
         changes = {"pe_centre": tuple(float(x) for x in (rest.min(0) + rest.max(0)) / 2)}
         if mesh.albedo is not None:
             changes["init_rgb"] = tuple(float(x) for x in _mean_albedo(mesh))
         if config is None:
             config = AvatarConfig(n_expr=model.n_expr)
         config = replace(config, **changes)
-        return cls(mesh, shape, config, model.model_id)
+        return cls(mesh, shape, config, model.model_id, identity_offset)
 
     def _init_outputs(self):
         starts = {

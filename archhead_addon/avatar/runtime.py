@@ -24,7 +24,6 @@ import weakref
 import numpy as np
 
 from ..flame.lbs import forward_full
-from ..flame.model import FlameModel
 from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
 from ..uv.raster import UVRaster, face_texel_scale
 from .bicubic import resize
@@ -32,6 +31,7 @@ from .checkpoint_format import AvatarCheckpoint, checkpoint_mesh, read_checkpoin
 from .config import EYES_DIM, HEADS, JAW_DIM, QUAT_EPS
 from .culling import ViewFrustum, reach
 from .gaussians import Gaussians, quat_multiply
+from .identity import bake_identity
 from .lod import blend_weights, resolution_for_lod
 
 F32, F16 = np.float32, np.float16
@@ -46,7 +46,7 @@ class AvatarRuntime:
     def __init__(self, ckpt: AvatarCheckpoint, flame=None, path=None, max_cached: int = 4):
         self.config = cfg = ckpt.config
         self.mesh = checkpoint_mesh(ckpt, flame, path)
-        self.head = _bake_identity(self.mesh, ckpt.identity_shape)
+        self.head = bake_identity(self.mesh, ckpt.identity_shape, ckpt.identity_offset)
         self.raster = UVRaster(self.mesh.uv, self.mesh.uv_faces)
         self.face_scale = face_texel_scale(
             self.mesh.v_template, self.mesh.faces, self.mesh.uv, self.mesh.uv_faces
@@ -317,17 +317,6 @@ def _relu_(x: np.ndarray) -> None:
 def _rows(x: np.ndarray) -> np.ndarray:
     """(C, N) channel-major -> (N, C) contiguous."""
     return np.ascontiguousarray(x.T)
-
-
-def _bake_identity(mesh: FlameModel, identity_shape: np.ndarray) -> FlameModel:
-    """The mesh with the identity blendshapes applied to the template and dropped: FLAME
-    computes the same vertices and joints from it, without the identity product per frame."""
-    offsets = mesh.shapedirs[:, :, : len(identity_shape)] @ identity_shape.astype(np.float64)
-    return mesh.replace(
-        v_template=mesh.v_template + offsets,
-        n_shape=0,
-        shapedirs=mesh.shapedirs[:, :, mesh.n_shape :],
-    )
 
 
 def _code(value, width: int, name: str, pad: bool = False) -> np.ndarray:

@@ -22,16 +22,7 @@ from ..flame.lbs import forward
 from ..flame.model import FlameModel, load_model
 from ..rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from ..sequences import Sequence, read_sequence
-from .embedding import landmark_embedding
-
-FACE_RADIUS = 0.01  # metres: the face region is the mesh within this of a landmark
-
-
-def face_region(model: FlameModel) -> np.ndarray:
-    emb = landmark_embedding(model)
-    points = emb.points(model.v_template, model.faces)[emb.weight > 0.5]
-    dist = np.linalg.norm(model.v_template[:, None] - points[None], axis=-1).min(axis=1)
-    return dist < FACE_RADIUS
+from .embedding import face_region, landmark_embedding
 
 
 def _similarity(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -97,7 +88,9 @@ def summarise(errors: np.ndarray) -> dict:
 
 
 def main(argv=None) -> int:
+    from .cli import add_refinement_flags
     from .fit import FitOptions, fit_landmarks, fitted_sequence
+    from .photometric import PhotometricOptions
     from .pipeline import TrackOptions, track
 
     parser = argparse.ArgumentParser(
@@ -107,6 +100,13 @@ def main(argv=None) -> int:
     parser.add_argument("--frames", type=int)
     parser.add_argument(
         "--known-focal", action="store_true", help="give the tracker the true focal length"
+    )
+    add_refinement_flags(parser)
+    parser.add_argument(
+        "--photometric-options",
+        type=json.loads,
+        default={},
+        help="JSON of PhotometricOptions fields to change, e.g. '{\"weight\": 0.5}'",
     )
     args = parser.parse_args(argv)
     model = load_model(None)
@@ -119,7 +119,15 @@ def main(argv=None) -> int:
         report = track(
             f"{args.data}/frames",
             f"{tmp}/out",
-            TrackOptions(size=max(size), max_frames=n, focal=focal),
+            TrackOptions(
+                size=max(size),
+                max_frames=n,
+                focal=focal,
+                photometric=None
+                if args.no_photometric
+                else PhotometricOptions(**args.photometric_options),
+                static_offset=args.static_offset,
+            ),
         )
         tracked = read_sequence(f"{tmp}/out/tracking.npz")
     kept = np.isin(truth.frame_ids, tracked.frame_ids)
@@ -165,6 +173,10 @@ def main(argv=None) -> int:
         "codes": code_errors(tracked, truth_kept),
         "perfect_landmarks_vertex_error": summarise(vertex_errors(model, perfect_seq, truth_kept)),
         "landmark_residual_px": report["residual_px"],
+        "jitter_px": report["jitter_px"],
+        "photometric": report["photometric"],
+        "photometric_options": None if args.no_photometric else args.photometric_options,
+        "static_offset_mm": report["static_offset_mm"],
         "seconds_per_frame": report["seconds_per_frame"],
     }
     print(json.dumps(result, indent=1))

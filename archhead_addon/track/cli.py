@@ -32,6 +32,7 @@ def add_track(commands) -> None:
         help="drop frames where a hand covers more than this fraction of the face's landmarks "
         f"(default {MAX_HAND_COVER}; 1 keeps them all)",
     )
+    add_refinement_flags(p)
     p.add_argument(
         "--progress-json",
         action="store_true",
@@ -40,8 +41,22 @@ def add_track(commands) -> None:
     p.set_defaults(run=_track)
 
 
+def add_refinement_flags(p) -> None:
+    p.add_argument(
+        "--no-photometric",
+        action="store_true",
+        help="keep the landmark fit as it is (no refinement against the frames)",
+    )
+    p.add_argument(
+        "--static-offset",
+        action="store_true",
+        help="also fit a per-vertex offset of the identity during the refinement",
+    )
+
+
 def _track(args) -> int:
     from .detect import TrackerUnavailable
+    from .photometric import PhotometricOptions
     from .pipeline import TrackOptions, track
 
     progress = Progress(args.progress_json)
@@ -60,6 +75,8 @@ def _track(args) -> int:
         focal=args.focal,
         flame=args.flame,
         max_hand_cover=args.max_hand_cover,
+        photometric=None if args.no_photometric else PhotometricOptions(),
+        static_offset=args.static_offset,
     )
     progress.event("start", step=0, total=0, input=str(args.input), out=str(args.out))
     try:
@@ -93,6 +110,7 @@ def add_subject(commands) -> None:
     p.add_argument("--out", required=True)
     p.add_argument("--frames", type=int)
     p.add_argument("--size", type=int, default=512)
+    add_refinement_flags(p)
     p.add_argument("--progress-json", action="store_true")
     p.set_defaults(run=_subject)
 

@@ -33,6 +33,7 @@ VIEW_YAWS = (-0.45, -0.25, 0.0, 0.25, 0.45)  # radians of head turn in the rende
 RENDER_SIZE = 512
 SPREAD_SCALE = 0.004  # metres; weight = 1 / (1 + (spread / SPREAD_SCALE)^2)
 MIN_VIEWS = 2
+FACE_RADIUS = 0.01  # metres: the face region is the mesh within this of a landmark
 
 
 @dataclass(frozen=True)
@@ -143,3 +144,11 @@ def derive_embedding(model: FlameModel) -> LandmarkEmbedding:
         spread[i] = np.median(np.linalg.norm(p - points[best, i], axis=1))
         weight[i] = 1.0 / (1.0 + (spread[i] / SPREAD_SCALE) ** 2)
     return LandmarkEmbedding(out_faces, out_bary, weight, spread)
+
+
+def face_region(model: FlameModel, emb: LandmarkEmbedding | None = None) -> np.ndarray:
+    """(V,) bool: the vertices within FACE_RADIUS of a well-placed landmark on the neutral."""
+    emb = emb or landmark_embedding(model)
+    points = emb.points(model.v_template, model.faces)[emb.weight > 0.5]
+    dist = np.linalg.norm(model.v_template[:, None] - points[None], axis=-1).min(axis=1)
+    return dist < FACE_RADIUS

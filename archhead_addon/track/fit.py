@@ -1,21 +1,24 @@
 """Fitting FLAME to 2D landmarks over a whole clip at once (torch, CPU).
 
-Unknowns: one identity (the leading `n_shape` components), per frame the expression, jaw,
-eyes, global rotation and translation, and one focal length (fitted unless given). The
-camera is fixed (OpenCV, on FLAME's +z axis looking down -z, principal point at the image
-centre); the head moves in front of it. Only the vertices under the landmarks are posed
-(`flame.subset`), so every frame of a clip is optimised in one batch.
+Unknowns: one identity (the leading `n_shape` components, and optionally a per-vertex static
+offset), per frame the expression, jaw, eyes, global rotation and translation, and one focal
+length (fitted unless given). The camera is fixed (OpenCV, on FLAME's +z axis looking down
+-z, principal point at the image centre); the head moves in front of it. Only the vertices
+under the landmarks are posed (`flame.subset`), so every frame of a clip is optimised in one
+batch.
 
 Energy, per frame (landmark residuals r in units of the clip's face size):
   data      sum_l w_l rho(|r_l|) / sum_l w_l, rho the Charbonnier (quadratic under ~2 px)
   priors    shape and expression coefficients, eye and jaw rotations (squared)
   temporal  squared differences of neighbouring frames' codes (per second of gap)
-Two stages: the rigid pose and focal length first, then everything.
+  offset    (when fitted) its size and its differences along mesh edges (squared)
+Two stages: the rigid pose and focal length first, then everything. `track.photometric`
+adds an image term to the same energy and goes on from there.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -28,6 +31,18 @@ from .embedding import LandmarkEmbedding
 CAMERA_DISTANCE = 1.0  # metres from the FLAME origin to the camera at the rest pose
 # Outer cheek points of Face Mesh (left / right of the image); their span sets the scale.
 SPAN_LANDMARKS = (234, 454)
+PER_FRAME = ("expr", "jaw", "eyes", "rotation", "translation")
+ONCE = ("shape", "static_offset")
+LEARNING_RATES = {
+    "shape": 0.05,
+    "expr": 0.05,
+    "jaw": 0.01,
+    "eyes": 0.02,
+    "rotation": 0.01,
+    "translation": 0.002,
+    "log_focal": 0.01,
+    "static_offset": 2e-4,  # metres
+}
 
 
 @dataclass
@@ -49,6 +64,8 @@ class FitOptions:
             "smooth_pose": 3e-2,
             "smooth_translation": 3.0,
             "smooth_eyes": 3e-4,
+            "offset": 30.0,  # per square metre of mean offset
+            "offset_edges": 3e3,  # per square metre of mean difference along an edge
         }
     )
 
@@ -64,6 +81,17 @@ class FitResult:
     projected: np.ndarray  # (T,478,2) the fitted landmarks, pixels
     seconds: float
 
+    def select(self, rows) -> FitResult:
+        """The result for frames `rows` only (the shape and camera unchanged)."""
+        per_frame = {k: v if k in ONCE else v[rows] for k, v in self.codes.items()}
+        return replace(
+            self,
+            codes=per_frame,
+            residual_px=self.residual_px[rows],
+            landmark_residual_px=self.landmark_residual_px[rows],
+            projected=self.projected[rows],
+        )
+
 
 def fixed_camera(focal: float, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     height, width = size
@@ -71,6 +99,246 @@ def fixed_camera(focal: float, size: tuple[int, int]) -> tuple[np.ndarray, np.nd
     w2c = np.diag([1.0, -1.0, -1.0, 1.0])
     w2c[2, 3] = CAMERA_DISTANCE
     return K, w2c
+
+
+def crop_intrinsics(K: np.ndarray, crop, size: int) -> np.ndarray:
+    """Intrinsics `K` of the source frames seen through their square crop (x0, y0, side)
+    resized to `size` pixels."""
+    x0, y0, side = crop
+    scale = size / side
+    K = K.copy()
+    K[:2] *= scale
+    K[0, 2] -= x0 * scale
+    K[1, 2] -= y0 * scale
+    return K
+
+
+class ClipFit:
+    """A clip's unknowns (`p`, torch leaves) and the landmark energy over them.
+
+    `init`: codes to start from (FitResult.codes of these frames, and a focal length);
+    without it the pose starts from the landmarks' position and span.
+    """
+
+    def __init__(
+        self,
+        model: FlameModel,
+        emb: LandmarkEmbedding,
+        landmarks: np.ndarray,
+        frame_ids: np.ndarray,
+        fps: float,
+        size: tuple[int, int],
+        options: FitOptions | None = None,
+        init: dict | None = None,
+        static_offset: bool = False,
+    ):
+        import torch
+
+        from ..flame.lbs_torch import FlameLayer
+
+        self.opt = opt = options or FitOptions()
+        self.model, self.emb, self.size = model, emb, size
+        n_frames = len(landmarks)
+        self.n_shape, self.n_expr = min(opt.n_shape, model.n_shape), min(opt.n_expr, model.n_expr)
+        used, inverse = np.unique(model.faces[emb.faces], return_inverse=True)
+        self.landmark_vertices = used
+        self.layer = FlameLayer(vertex_subset(model, used))
+        self.corner_index = torch.from_numpy(inverse.reshape(-1, 3))
+        self.bary = torch.from_numpy(emb.bary.astype(np.float32))
+        self.target = torch.from_numpy(landmarks.astype(np.float32))
+        self.weight = torch.from_numpy(emb.weight.astype(np.float32))
+        self.j_regressor = torch.from_numpy(model.j_regressor.astype(np.float32))
+        self.edges = torch.from_numpy(_edges(model.faces))
+        spans = np.linalg.norm(
+            landmarks[:, SPAN_LANDMARKS[0]] - landmarks[:, SPAN_LANDMARKS[1]], axis=-1
+        )
+        self.scale = float(max(np.median(spans), 1.0))  # pixels per face size
+        height, width = size
+        self.log_focal0 = float(np.log(opt.focal or 1.2 * max(height, width)))
+        if init is None:
+            init = _initial_pose(model, emb, landmarks, size, float(np.exp(self.log_focal0)))
+        self.p = self._parameters(n_frames, init, static_offset)
+        gaps = np.maximum(np.diff(frame_ids), 1).astype(np.float32) / max(fps, 1e-6) * 25.0
+        self.gap_w = torch.from_numpy(1.0 / gaps)[:, None]  # neighbours further apart bind less
+
+    def _parameters(self, n_frames: int, init: dict, static_offset: bool) -> dict:
+        import torch
+
+        def start(key, width):
+            value = init.get(key)
+            if value is None:
+                return torch.zeros(n_frames, width)
+            return torch.tensor(np.asarray(value)[:, :width], dtype=torch.float32)
+
+        shape = np.zeros(self.n_shape)
+        if init.get("shape") is not None:
+            shape = np.asarray(init["shape"])[: self.n_shape]
+        p = {
+            "shape": torch.tensor(shape[None], dtype=torch.float32),
+            "expr": start("expr", self.n_expr),
+            "jaw": start("jaw", 3),
+            "eyes": start("eyes", 6),
+            "rotation": start("rotation", 3),
+            "translation": start("translation", 3),
+            "log_focal": torch.tensor(
+                [np.log(init["focal"]) if "focal" in init else self.log_focal0],
+                dtype=torch.float32,
+            ),
+        }
+        if static_offset:
+            p["static_offset"] = torch.zeros(self.model.n_verts, 3)
+        for v in p.values():
+            v.requires_grad_(True)
+        return p
+
+    def subset_offset(self, vertex_ids):
+        """The static offset of vertices `vertex_ids` and of the five joint carriers that
+        `vertex_subset` appends (the joints move with the whole mesh's offset)."""
+        import torch
+
+        offset = self.p.get("static_offset")
+        if offset is None:
+            return None
+        return torch.cat([offset[torch.as_tensor(vertex_ids)], self.j_regressor @ offset])
+
+    def pose(self, layer, vertex_ids, frames=slice(None)):
+        """Posed vertices (B,n,3) of a `vertex_subset` layer over `vertex_ids`."""
+        p = self.p
+        return layer(
+            shape=p["shape"],
+            expr=p["expr"][frames],
+            jaw=p["jaw"][frames],
+            eyes=p["eyes"][frames],
+            rotation=p["rotation"][frames],
+            translation=p["translation"][frames],
+            static_offset=self.subset_offset(vertex_ids),
+        )[:, : len(vertex_ids)]
+
+    def focal(self):
+        import torch
+
+        return torch.exp(self.p["log_focal"])
+
+    def project_points(self, pts, focal, size):
+        """Pixels (...,2) of FLAME-space points (...,3) seen by the fixed camera."""
+        import torch
+
+        height, width = size
+        cam_x, cam_y = pts[..., 0], -pts[..., 1]
+        cam_z = (CAMERA_DISTANCE - pts[..., 2]).clamp_min(1e-3)
+        return torch.stack(
+            [focal * cam_x / cam_z + width / 2, focal * cam_y / cam_z + height / 2], -1
+        )
+
+    def project(self):
+        verts = self.pose(self.layer, self.landmark_vertices)
+        pts = (verts[:, self.corner_index] * self.bary[None, :, :, None]).sum(2)  # (T,478,3)
+        return self.project_points(pts, self.focal(), self.size)
+
+    def _smooth(self, key):
+        d = self.p[key][1:] - self.p[key][:-1]
+        return (self.gap_w * d.square()).sum(-1).mean() if len(d) else d.sum() * 0
+
+    def energy(self):
+        """(energy, landmark data term)."""
+        p, w, opt = self.p, self.opt.weights, self.opt
+        r = (self.project() - self.target).norm(dim=-1) / self.scale
+        rho = (r.square() + opt.delta**2).sqrt() - opt.delta
+        data = ((rho * self.weight).sum(-1) / self.weight.sum()).mean()
+        n_frames = len(p["expr"])
+        e = data + w["shape"] * p["shape"].square().sum() / max(n_frames, 1) ** 0.5
+        e = e + w["expr"] * p["expr"].square().sum(-1).mean()
+        e = e + w["jaw"] * p["jaw"].square().sum(-1).mean()
+        e = e + w["eyes"] * p["eyes"].square().sum(-1).mean()
+        e = e + w["focal"] * (p["log_focal"] - self.log_focal0).square().sum()
+        e = (
+            e
+            + w["smooth_expr"] * self._smooth("expr")
+            + w["smooth_pose"] * (self._smooth("rotation") + self._smooth("jaw"))
+            + w["smooth_translation"] * self._smooth("translation")
+            + w["smooth_eyes"] * self._smooth("eyes")
+        )
+        offset = p.get("static_offset")
+        if offset is not None:
+            along = offset[self.edges[:, 0]] - offset[self.edges[:, 1]]
+            e = e + w["offset"] * offset.square().sum(-1).mean()
+            e = e + w["offset_edges"] * along.square().sum(-1).mean()
+        return e, data
+
+    def optimise(
+        self, keys, steps: int, extra=None, progress=None, done: int = 0, total=None, more=()
+    ):
+        """Adam with a cosine schedule over `keys` and the (tensor, learning rate) pairs
+        `more`; `extra(step)` adds terms to the energy."""
+        import torch
+
+        keys = [k for k in keys if k in self.p and (k != "log_focal" or self.opt.focal is None)]
+        groups = [{"params": [self.p[k]], "lr": LEARNING_RATES[k]} for k in keys]
+        adam = torch.optim.Adam(groups + [{"params": [t], "lr": lr} for t, lr in more])
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, steps, eta_min=0.0)
+        for step in range(steps):
+            adam.zero_grad()
+            e, data = self.energy()
+            if extra is not None:
+                e = e + extra(step)
+            e.backward()
+            adam.step()
+            sched.step()
+            if progress is not None and (done + step + 1) % 20 == 0:
+                progress(done + step + 1, total or steps, data.item())
+
+    def codes(self) -> dict:
+        """The fitted codes at the model's full widths (zeros beyond the fitted components),
+        so that readers of the tracking do not warn about padding."""
+        p, model = self.p, self.model
+        codes = {k: p[k].detach().numpy().astype(np.float64) for k in PER_FRAME}
+        codes["shape"] = np.zeros(model.n_shape)
+        codes["shape"][: self.n_shape] = p["shape"].detach().numpy()[0]
+        codes["expr"] = np.pad(codes["expr"], ((0, 0), (0, model.n_expr - self.n_expr)))
+        codes["neck"] = np.zeros((len(codes["expr"]), 3))
+        if "static_offset" in p:
+            codes["static_offset"] = p["static_offset"].detach().numpy().astype(np.float64)
+        return codes
+
+    def result(self, seconds: float) -> FitResult:
+        import torch
+
+        with torch.no_grad():
+            projected = self.project()
+            residual = (projected - self.target).norm(dim=-1).numpy().astype(np.float64)
+        focal = float(self.focal().item())
+        K, w2c = fixed_camera(focal, self.size)
+        good = self.emb.weight > 0.5
+        return FitResult(
+            self.codes(),
+            focal,
+            K,
+            w2c,
+            np.median(residual[:, good], axis=1),
+            residual,
+            projected.numpy().astype(np.float64),
+            seconds,
+        )
+
+
+def _edges(faces: np.ndarray) -> np.ndarray:
+    pairs = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return np.unique(np.sort(pairs, axis=1), axis=0)
+
+
+def _initial_pose(model, emb, landmarks, size, focal: float) -> dict:
+    """Translation from the face's span (depth) and the landmarks' centre (x, y)."""
+    height, width = size
+    neutral = emb.points(model.v_template, model.faces)
+    span_m = float(np.linalg.norm(neutral[SPAN_LANDMARKS[0]] - neutral[SPAN_LANDMARKS[1]]))
+    spans = np.linalg.norm(
+        landmarks[:, SPAN_LANDMARKS[0]] - landmarks[:, SPAN_LANDMARKS[1]], axis=-1
+    )
+    depth = focal * span_m / spans
+    centre = landmarks.mean(axis=1)
+    x = (centre[:, 0] - width / 2) * depth / focal
+    y = -(centre[:, 1] - height / 2) * depth / focal
+    return {"translation": np.stack([x, y, CAMERA_DISTANCE - depth], 1)}
 
 
 def fit_landmarks(
@@ -86,148 +354,16 @@ def fit_landmarks(
     """Fit `landmarks` (T,478,2) pixels of frames `frame_ids` (size (H, W))."""
     import torch
 
-    from ..flame.lbs_torch import FlameLayer
-
-    opt = options or FitOptions()
     watch = Stopwatch()
     torch.manual_seed(0)
-    n_frames = len(landmarks)
-    n_shape, n_expr = min(opt.n_shape, model.n_shape), min(opt.n_expr, model.n_expr)
-    corner_ids = model.faces[emb.faces]  # (478,3)
-    used, inverse = np.unique(corner_ids, return_inverse=True)
-    layer = FlameLayer(vertex_subset(model, used))
-    corner_index = torch.from_numpy(inverse.reshape(-1, 3))
-    bary = torch.from_numpy(emb.bary.astype(np.float32))
-    target = torch.from_numpy(landmarks.astype(np.float32))
-    weight = torch.from_numpy(emb.weight.astype(np.float32))
-    height, width = size
-
-    span_px = np.median(
-        np.linalg.norm(landmarks[:, SPAN_LANDMARKS[0]] - landmarks[:, SPAN_LANDMARKS[1]], axis=-1)
+    fit = ClipFit(model, emb, landmarks, frame_ids, fps, size, options)
+    opt = fit.opt
+    total = opt.rigid_steps + opt.full_steps
+    fit.optimise(
+        ("rotation", "translation", "log_focal"), opt.rigid_steps, None, progress, 0, total
     )
-    scale = float(max(span_px, 1.0))  # pixels per face size
-    neutral = emb.points(model.v_template, model.faces)
-    span_m = float(np.linalg.norm(neutral[SPAN_LANDMARKS[0]] - neutral[SPAN_LANDMARKS[1]]))
-    focal0 = float(opt.focal or 1.2 * max(height, width))
-    log_focal0 = np.log(focal0)
-
-    # Initial translation: depth from the face span, x/y from the landmarks' centre.
-    depth = (
-        focal0
-        * span_m
-        / np.linalg.norm(landmarks[:, SPAN_LANDMARKS[0]] - landmarks[:, SPAN_LANDMARKS[1]], axis=-1)
-    )
-    centre = landmarks.mean(axis=1)
-    x = (centre[:, 0] - width / 2) * depth / focal0
-    y = -(centre[:, 1] - height / 2) * depth / focal0
-    z = CAMERA_DISTANCE - depth
-    p = {
-        "shape": torch.zeros(1, n_shape),
-        "expr": torch.zeros(n_frames, n_expr),
-        "jaw": torch.zeros(n_frames, 3),
-        "eyes": torch.zeros(n_frames, 6),
-        "rotation": torch.zeros(n_frames, 3),
-        "translation": torch.from_numpy(np.stack([x, y, z], 1).astype(np.float32)),
-        "log_focal": torch.tensor([log_focal0], dtype=torch.float32),
-    }
-    for v in p.values():
-        v.requires_grad_(True)
-    gaps = np.maximum(np.diff(frame_ids), 1).astype(np.float32) / max(fps, 1e-6) * 25.0
-    gap_w = torch.from_numpy(1.0 / gaps)[:, None]  # neighbours further apart bind less
-
-    def project():
-        verts = layer(
-            shape=p["shape"],
-            expr=p["expr"],
-            jaw=p["jaw"],
-            eyes=p["eyes"],
-            rotation=p["rotation"],
-            translation=p["translation"],
-        )
-        pts = (verts[:, corner_index] * bary[None, :, :, None]).sum(2)  # (T,478,3)
-        cam_x, cam_y, cam_z = pts[..., 0], -pts[..., 1], CAMERA_DISTANCE - pts[..., 2]
-        f = torch.exp(p["log_focal"])
-        cam_z = cam_z.clamp_min(1e-3)
-        return torch.stack([f * cam_x / cam_z + width / 2, f * cam_y / cam_z + height / 2], -1)
-
-    w = opt.weights
-
-    def smooth(key):
-        d = p[key][1:] - p[key][:-1]
-        return (gap_w * d.square()).sum(-1).mean() if n_frames > 1 else d.sum() * 0
-
-    def energy():
-        r = (project() - target).norm(dim=-1) / scale
-        rho = torch.sqrt(r.square() + opt.delta**2) - opt.delta
-        data = ((rho * weight).sum(-1) / weight.sum()).mean()
-        e = data + w["shape"] * p["shape"].square().sum() / max(n_frames, 1) ** 0.5
-        e = e + w["expr"] * p["expr"].square().sum(-1).mean()
-        e = e + w["jaw"] * p["jaw"].square().sum(-1).mean()
-        e = e + w["eyes"] * p["eyes"].square().sum(-1).mean()
-        e = e + w["focal"] * (p["log_focal"] - log_focal0).square().sum()
-        e = (
-            e
-            + w["smooth_expr"] * smooth("expr")
-            + w["smooth_pose"] * (smooth("rotation") + smooth("jaw"))
-            + w["smooth_translation"] * smooth("translation")
-            + w["smooth_eyes"] * smooth("eyes")
-        )
-        return e, data
-
-    lrs = {
-        "shape": 0.05,
-        "expr": 0.05,
-        "jaw": 0.01,
-        "eyes": 0.02,
-        "rotation": 0.01,
-        "translation": 0.002,
-        "log_focal": 0.01,
-    }
-    stages = [
-        (("rotation", "translation", "log_focal"), opt.rigid_steps),
-        (tuple(lrs), opt.full_steps),
-    ]
-    total = sum(steps for _, steps in stages)
-    done = 0
-    for keys, steps in stages:
-        keys = [k for k in keys if k != "log_focal" or opt.focal is None]
-        adam = torch.optim.Adam([{"params": [p[k]], "lr": lrs[k]} for k in keys])
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, steps, eta_min=0.0)
-        for _ in range(steps):
-            adam.zero_grad()
-            e, data = energy()
-            e.backward()
-            adam.step()
-            sched.step()
-            done += 1
-            if progress is not None and done % 20 == 0:
-                progress(done, total, data.item())
-    with torch.no_grad():
-        projected = project()
-        residual = (projected - target).norm(dim=-1).numpy().astype(np.float64)
-    focal = float(np.exp(p["log_focal"].item()))
-    K, w2c = fixed_camera(focal, size)
-    codes = {
-        k: p[k].detach().numpy().astype(np.float64)
-        for k in ("expr", "jaw", "eyes", "rotation", "translation")
-    }
-    # the model's full widths (zeros beyond the fitted components), so that readers of the
-    # tracking do not warn about padding
-    codes["shape"] = np.zeros(model.n_shape)
-    codes["shape"][:n_shape] = p["shape"].detach().numpy()[0]
-    codes["expr"] = np.pad(codes["expr"], ((0, 0), (0, model.n_expr - n_expr)))
-    codes["neck"] = np.zeros((n_frames, 3))
-    good = emb.weight > 0.5
-    return FitResult(
-        codes,
-        focal,
-        K,
-        w2c,
-        np.median(residual[:, good], axis=1),
-        residual,
-        projected.numpy().astype(np.float64),
-        watch.seconds,
-    )
+    fit.optimise(tuple(LEARNING_RATES), opt.full_steps, None, progress, opt.rigid_steps, total)
+    return fit.result(watch.seconds)
 
 
 def fitted_sequence(codes: dict, frame_ids, fps: float, source: str, **camera) -> Sequence:
@@ -238,6 +374,7 @@ def fitted_sequence(codes: dict, frame_ids, fps: float, source: str, **camera) -
     return Sequence(
         shape=np.tile(codes["shape"], (n, 1)),
         **per_frame,
+        static_offset=codes.get("static_offset"),
         fps=fps,
         frame_ids=frame_ids,
         source=source,

@@ -6,7 +6,7 @@ position is known) so memory holds landmarks and small masks, not the video.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -19,9 +19,10 @@ from ..train.dataset import TRACKING_FILE
 from ..train.images import resize
 from .detect import MAX_HAND_COVER, FaceDetector
 from .embedding import landmark_embedding
-from .fit import FitOptions, fit_landmarks, fitted_sequence
+from .fit import ClipFit, FitOptions, crop_intrinsics, fit_landmarks, fitted_sequence
 from .folder import staged_folder, write_frame, write_report
 from .media import open_frames
+from .photometric import PhotometricOptions, refine_photometric
 
 MIN_FRAMES = 2  # a training folder needs a train and a test frame
 CROP_FACE_HEIGHTS = 2.6  # the square crop's side in face heights (when the frame allows)
@@ -35,6 +36,9 @@ class TrackOptions:
     focal: float | None = None  # pixels at the source frames' size
     flame: str | None = None  # a FLAME model file; None: the built-in head
     max_hand_cover: float = MAX_HAND_COVER  # 1 keeps frames with a hand over the face
+    # refine the landmark fit against the frames (photometric.py); None: landmarks only
+    photometric: PhotometricOptions | None = field(default_factory=PhotometricOptions)
+    static_offset: bool = False  # fit a per-vertex offset of the identity (with photometric)
 
 
 def _square_crop(landmarks: np.ndarray, size: tuple[int, int]) -> tuple[int, int, int]:
@@ -54,6 +58,10 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     opt = options or TrackOptions()
     if not 16 <= opt.size <= 4096:
         raise InputError(None, "size", f"{opt.size} px is outside 16 ... 4096")
+    if opt.static_offset and opt.photometric is None:
+        raise InputError(
+            None, "static_offset", "is fitted by the photometric refinement: keep it on"
+        )
     say = progress or (lambda **event: None)
     times = {}
     watch = Stopwatch()
@@ -140,30 +148,19 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         warn_input(source.path, None, f"{len(dropped)} frames dropped (listed in the report)")
 
     x0, y0, side = _square_crop(landmarks[keep], size)
-    scale = opt.size / side
-    K = fit.K.copy()
-    K[:2] *= scale
-    K[0, 2] -= x0 * scale
-    K[1, 2] -= y0 * scale
     kept = np.flatnonzero(keep)
     n = len(kept)
-    codes = {k: (v if k == "shape" else v[kept]) for k, v in fit.codes.items()}
-    seq = fitted_sequence(
-        codes,
-        numbers[kept],
-        source.fps,
-        str(source.path),
-        K=np.tile(K, (n, 1, 1)),
-        w2c=np.tile(fit.w2c, (n, 1, 1)),
-        image_size=(opt.size, opt.size),
-    )
-
-    watch = Stopwatch()
-    out_size = (opt.size, opt.size)
-    cut_rows = _neck_rows(model, codes, K, fit.w2c, out_size)
+    fit = fit.select(kept)
     position = {int(numbers[i]): j for j, i in enumerate(kept)}
+    out_size = (opt.size, opt.size)
+    scale = opt.size / side
+    cut_rows = _neck_rows(
+        model, fit.codes, crop_intrinsics(fit.K, (x0, y0, side), opt.size), fit.w2c, out_size
+    )
+    small = min(opt.photometric.size, opt.size) if opt.photometric else 0
     with staged_folder(out) as stage:
-        write_canonical(seq, stage / TRACKING_FILE)
+        watch = Stopwatch()
+        images, image_masks = [], []
         for number, rgb in source.frames(total):
             j = position.get(number)
             if j is None:
@@ -174,21 +171,61 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             mask = resize(mask, out_size)
             mask[cut_rows[j] :] = 0.0  # clothes and shoulders below the head mesh
             write_frame(stage, number, frame, mask)
+            if small:
+                images.append(
+                    np.round(np.clip(resize(crop, (small, small)), 0, 255)).astype(np.uint8)
+                )
+                image_masks.append(resize(mask, (small, small)))
             say(event="step", stage="write", step=j + 1, total=n)
         times["write"] = watch.seconds
+        photometric = None
+        if small:
+            watch = Stopwatch()
+            clip = ClipFit(
+                model,
+                embedding,
+                landmarks[kept],
+                numbers[kept],
+                source.fps,
+                size,
+                FitOptions(focal=fit.focal),
+                init=fit.codes,
+                static_offset=opt.static_offset,
+            )
+            photometric = refine_photometric(
+                clip,
+                np.array(images),
+                np.array(image_masks),
+                (x0, y0, side),
+                opt.photometric,
+                progress=lambda d, t, e: say(event="step", stage="refine", step=d, total=t),
+            )
+            fit = clip.result(fit.seconds + watch.seconds)
+            times["refine"] = watch.seconds
+        K = crop_intrinsics(fit.K, (x0, y0, side), opt.size)
+        seq = fitted_sequence(
+            fit.codes,
+            numbers[kept],
+            source.fps,
+            str(source.path),
+            K=np.tile(K, (n, 1, 1)),
+            w2c=np.tile(fit.w2c, (n, 1, 1)),
+            image_size=out_size,
+        )
+        write_canonical(seq, stage / TRACKING_FILE)
         report = _report(
             source,
             opt,
             n_read,
-            numbers,
-            landmarks,
-            kept,
+            numbers[kept],
+            landmarks[kept],
             dropped,
             fit,
             scale,
             (x0, y0, side),
             times,
             multi,
+            photometric,
         )
         write_report(stage, report)
     return report
@@ -206,6 +243,13 @@ def _neck_rows(model, codes, K, w2c, size, chunk: int = 64) -> np.ndarray:
     return np.concatenate(rows)
 
 
+def _offset_mm(offset) -> dict | None:
+    if offset is None:
+        return None
+    length = np.linalg.norm(offset, axis=1) * 1000
+    return {"median": round(float(np.median(length)), 3), "max": round(float(length.max()), 3)}
+
+
 def jitter_px(points: np.ndarray, numbers: np.ndarray) -> float:
     """Median second difference of landmark tracks (T,L,2) over runs of consecutive frames:
     how far points jump beyond constant velocity, frame to frame."""
@@ -217,10 +261,11 @@ def jitter_px(points: np.ndarray, numbers: np.ndarray) -> float:
 
 
 def _report(
-    source, opt, n_read, numbers, landmarks, kept, dropped, fit, scale, crop, times, multi
+    source, opt, n_read, numbers, landmarks, dropped, fit, scale, crop, times, multi, photometric
 ) -> dict:
-    good = fit.landmark_residual_px[kept] * scale  # at the output size
-    residual = fit.residual_px[kept] * scale
+    """The tracking report of the kept frames (`numbers`, `landmarks`, `fit` are theirs)."""
+    good = fit.landmark_residual_px * scale  # at the output size
+    residual = fit.residual_px * scale
     rounded = {
         k: round(v, 3)
         for k, v in (
@@ -232,7 +277,7 @@ def _report(
     return {
         "source": str(source.path),
         "frames_read": int(n_read),
-        "frames_kept": int(len(kept)),
+        "frames_kept": int(len(numbers)),
         "dropped": sorted(dropped, key=lambda d: d["frame"]),
         "frames_with_several_faces": int(multi),
         "frames_with_a_hand_over_the_face": sum("hand covers" in d["reason"] for d in dropped),
@@ -243,9 +288,11 @@ def _report(
         "model": opt.flame or "built-in",
         "residual_px": rounded,
         "jitter_px": {
-            "fitted": round(jitter_px(fit.projected[kept] * scale, numbers[kept]), 3),
-            "detected": round(jitter_px(landmarks[kept] * scale, numbers[kept]), 3),
+            "fitted": round(jitter_px(fit.projected * scale, numbers), 3),
+            "detected": round(jitter_px(landmarks * scale, numbers), 3),
         },
+        "photometric": None if photometric is None else photometric.as_dict(),
+        "static_offset_mm": _offset_mm(fit.codes.get("static_offset")),
         "seconds": {k: round(v, 2) for k, v in times.items()},
         "seconds_per_frame": round(sum(times.values()) / max(n_read, 1), 3),
     }

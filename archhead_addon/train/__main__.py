@@ -138,7 +138,14 @@ def setup(args, progress: Progress) -> Trainer:
             progress.message(f"repaired: {problem}; rewritten from {state_path.name}")
     else:
         trainer = loop.Trainer.create(
-            config, frames, model, dataset.sequence.shape[0], args.out, dataset.background, device
+            config,
+            frames,
+            model,
+            dataset.sequence.shape[0],
+            args.out,
+            dataset.background,
+            device,
+            identity_offset=dataset.sequence.static_offset,
         )
     progress.event(
         START,

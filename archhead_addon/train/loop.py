@@ -147,10 +147,23 @@ class Trainer:
 
     @classmethod
     def create(
-        cls, config: TrainConfig, frames, model, identity_shape, out_dir, background, device
+        cls,
+        config: TrainConfig,
+        frames,
+        model,
+        identity_shape,
+        out_dir,
+        background,
+        device,
+        identity_offset=None,
     ) -> Trainer:
         torch.manual_seed(config.seed)
-        avatar = ArchHeadAvatar.create(model, identity_shape, config.avatar_config(model.n_expr))
+        avatar = ArchHeadAvatar.create(
+            model,
+            identity_shape,
+            config.avatar_config(model.n_expr),
+            identity_offset=identity_offset,
+        )
         return cls(config, frames, avatar.to(device), out_dir, background, device)
 
     @classmethod
@@ -171,6 +184,7 @@ class Trainer:
             state["model"]["identity_shape"].numpy(),
             AvatarConfig.from_json(state["avatar_config"]),
             model.model_id,
+            _offset(state.get("identity_offset")),
         )
         try:
             avatar.load_state_dict(state["model"], strict=True)
@@ -287,6 +301,7 @@ class Trainer:
             "model_id": self.avatar.base_model_id,
             "avatar_config": self.avatar.config.to_json(),
             "model": {k: v.detach().cpu() for k, v in self.avatar.state_dict().items()},
+            "identity_offset": _tensor(self.avatar.identity_offset),
             "optimizer": _to_cpu(self.optimizer.state_dict()),
         }
         folder = RunFolder(self.out_dir)
@@ -357,6 +372,16 @@ def _as_tensors(value):
     if isinstance(value, list | tuple):
         return type(value)(_as_tensors(v) for v in value)
     return value
+
+
+def _tensor(array):
+    """A numpy array as a tensor for torch.save (None stays None)."""
+    return None if array is None else torch.from_numpy(np.asarray(array, np.float64))
+
+
+def _offset(tensor):
+    """The saved identity offset back as numpy (None stays None)."""
+    return None if tensor is None else tensor.numpy()
 
 
 def _to_cpu(value):

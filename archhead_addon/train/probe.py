@@ -87,7 +87,11 @@ def widen(avatar, hidden: int, colour_hidden: int):
         )
     config = replace(old, hidden=hidden, colour_hidden=colour_hidden)
     wide = ArchHeadAvatar(
-        avatar.mesh, avatar.identity_shape.cpu().numpy(), config, avatar.base_model_id
+        avatar.mesh,
+        avatar.identity_shape.cpu().numpy(),
+        config,
+        avatar.base_model_id,
+        avatar.identity_offset,
     ).to(avatar.identity_shape.device)
     wide.features.load_state_dict(avatar.features.state_dict())
     wide.mapping.load_state_dict(avatar.mapping.state_dict())

@@ -46,6 +46,11 @@ def read_train_state(path) -> dict:
     if state.get("model_id") is not None:
         _text(state, "model_id", path)
     _tensors(state.get("model"), path, "model")
+    offset = state.get("identity_offset")
+    if offset is not None:
+        _tensors({"": offset}, path, "identity_offset")
+        if offset.ndim != 2 or offset.shape[1] != 3:
+            raise InputError(path, "identity_offset", f"expected (V, 3), found {offset.shape}")
     _optimizer(state.get("optimizer"), path)
     return state
 
