@@ -47,7 +47,7 @@ class _Params(ctypes.Structure):
     ]
 
 
-_ABI_VERSION = 1
+_ABI_VERSION = 2
 _lib: ctypes.CDLL | None = None
 
 
@@ -210,6 +210,10 @@ def project(g: SplatFrame, settings: RasterSettings) -> Projected:
     return out
 
 
+_COUNTS = ("visible", "intersections")
+_STATS = (*_COUNTS, "project_ms", "bin_ms", "composite_ms", "bwd_composite_ms", "bwd_project_ms")
+
+
 class ForwardContext:
     """Owns the kernel state a backward pass needs; freed with the object."""
 
@@ -224,10 +228,16 @@ class ForwardContext:
             raise RuntimeError("the splat forward context was released")
         return self._handle
 
-    def stats(self) -> dict[str, int]:
-        out = (ctypes.c_int64 * 2)()
+    def stats(self) -> dict[str, float]:
+        """Counts (visible Gaussians, tile intersections) and the last forward's and
+        backward's phase times in ms (projection, sort and binning, compositing; backward
+        compositing, backward per-Gaussian reduction and projection VJP)."""
+        out = (ctypes.c_int64 * len(_STATS))()
         library().ah_splat_stats(self.handle, out)
-        return {"visible": int(out[0]), "intersections": int(out[1])}
+        return {
+            name: int(v) if name in _COUNTS else v * 1e-6
+            for name, v in zip(_STATS, out, strict=True)
+        }
 
     def release(self) -> None:
         if self._handle and _lib is not None:

@@ -216,12 +216,12 @@ constexpr int kEntryGrad = 10;  // d mean2d (2), d conic (3), d opacity, d rgb (
 
 // Back-to-front pass over one tile: transmittance is recovered by dividing out each alpha,
 // and the gradient of everything behind a sample is carried as one scalar per pixel.
-// Writes kEntryGrad floats per tile-list entry into entry_grad.
+// Writes the kEntryGrad floats of the tile's j-th entry at entry_grad + slot[j] * kEntryGrad.
 AH_HOT inline void composite_backward(const std::vector<TileSplat>& G, const TileFrame& f,
                                       const float* background, const float* g_rgb,
                                       const float* g_alpha, const float* g_depth,
                                       const float* T_final, const int32_t* last_in,
-                                      float* entry_grad) {
+                                      const int64_t* slot, float* entry_grad) {
     alignas(64) float T[kTilePixels], behind[kTilePixels], gr[kTilePixels], gg[kTilePixels],
         gb[kTilePixels], gz[kTilePixels];
     alignas(64) int32_t last[kTilePixels];
@@ -253,7 +253,8 @@ AH_HOT inline void composite_backward(const std::vector<TileSplat>& G, const Til
 
     const int64_t n = int64_t(G.size());
     const int64_t n_used = std::min<int64_t>(n, tile_last);
-    std::fill(entry_grad + n_used * kEntryGrad, entry_grad + n * kEntryGrad, 0.0f);
+    for (int64_t j = n_used; j < n; ++j)
+        std::fill_n(entry_grad + slot[j] * kEntryGrad, kEntryGrad, 0.0f);
     const vf centre[2] = {lane_centres(0), lane_centres(1)};
     for (int64_t j = n_used - 1; j >= 0; --j) {
         const TileSplat& s = G[j];
@@ -296,7 +297,7 @@ AH_HOT inline void composite_backward(const std::vector<TileSplat>& G, const Til
             }
         }
         const float sx = lane_sum(m_x), sy = lane_sum(m_y);
-        float* e = entry_grad + j * kEntryGrad;
+        float* e = entry_grad + slot[j] * kEntryGrad;
         e[0] = -(s.ca * sx + s.cb * sy);  // dp/dmean_x = -(ca dx + cb dy)
         e[1] = -(s.cb * sx + s.cc * sy);
         e[2] = -0.5f * lane_sum(m_xx);

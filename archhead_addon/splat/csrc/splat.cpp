@@ -80,6 +80,8 @@ struct Context {
     Bins bins;
     std::vector<float> T_final;
     std::vector<int32_t> last;
+    // Wall-clock seconds of the phases, for the benchmark's split (ah_splat_stats).
+    double t_project = 0, t_bin = 0, t_composite = 0, t_bwd_composite = 0, t_bwd_project = 0;
 
     Context(const ah_splat_params& p, int64_t n_) : params(p), cam(p), n(n_) {}
 };
@@ -98,6 +100,7 @@ void project_all(Context& C) {
     C.proj.bbox.assign(4 * n, 0);
     std::vector<double> depth64(n, 0.0);
     std::vector<uint8_t> visible(n, 0);
+    const double t0 = omp_get_wtime();
 #pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
     for (int64_t i = 0; i < n; ++i) {
         const Projection P = project_gaussian(C.cam, &C.means[3 * i], &C.log_scales[3 * i],
@@ -113,11 +116,14 @@ void project_all(Context& C) {
         depth64[i] = P.tc[2];
         for (int k = 0; k < 4; ++k) C.proj.bbox[4 * i + k] = B.bbox[k];
     }
+    const double t1 = omp_get_wtime();
+    C.t_project = t1 - t0;
     std::vector<int32_t> ids;
     for (int64_t i = 0; i < n; ++i)
         if (visible[i]) ids.push_back(int32_t(i));
     bin_tiles(C.bins, sort_by_depth(ids, depth64), C.proj.bbox, C.params.width, C.params.height,
               thread_count(C.params));
+    C.t_bin = omp_get_wtime() - t1;
 }
 
 TileFrame frame_of(const Context& C, int64_t tile) {
@@ -147,10 +153,12 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     const int64_t pixels = int64_t(C.params.width) * C.params.height;
     C.T_final.assign(pixels, 1.0f);
     C.last.assign(pixels, 0);
+    const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t) {
         composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
                           C.last.data());
     });
+    C.t_composite = omp_get_wtime() - t0;
 }
 
 void backward(Context& C, const float* g_rgb, const float* g_alpha, const float* g_depth,
@@ -158,10 +166,13 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
               float* d_colors) {
     const int64_t n = C.n;
     std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
+    const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s) {
         composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth, C.T_final.data(),
-                           C.last.data(), &entry_grad[s * kEntryGrad]);
+                           C.last.data(), &C.bins.slot_of[s], entry_grad.data());
     });
+    const double t1 = omp_get_wtime();
+    C.t_bwd_composite = t1 - t0;
 
     std::memset(d_means, 0, sizeof(float) * 3 * n);
     std::memset(d_log_scales, 0, sizeof(float) * 3 * n);
@@ -174,7 +185,7 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
         const int32_t i = C.bins.sorted[k];
         double acc[kEntryGrad] = {0};
         for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
-            const float* e = &entry_grad[C.bins.entry_of[q] * kEntryGrad];
+            const float* e = &entry_grad[q * kEntryGrad];
             for (int c = 0; c < kEntryGrad; ++c) acc[c] += e[c];
         }
         ProjectionGrad g;
@@ -197,6 +208,7 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
         for (int c = 0; c < 4; ++c) d_quats[4 * i + c] = saturate(dq[c]);
         d_logits[i] = saturate(dl);
     }
+    C.t_bwd_project = omp_get_wtime() - t1;
 }
 
 }  // namespace
@@ -276,8 +288,13 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
 
 void ah_splat_stats(const void* ctx, int64_t* stats) {
     const Context* C = static_cast<const Context*>(ctx);
-    stats[0] = int64_t(C->bins.sorted.size());
-    stats[1] = int64_t(C->bins.tile_ids.size());
+    const auto ns = [](double seconds) { return int64_t(seconds * 1e9); };
+    const int64_t out[AH_SPLAT_STATS_LEN] = {
+        int64_t(C->bins.sorted.size()), int64_t(C->bins.tile_ids.size()),
+        ns(C->t_project),               ns(C->t_bin),
+        ns(C->t_composite),             ns(C->t_bwd_composite),
+        ns(C->t_bwd_project)};
+    std::copy(out, out + AH_SPLAT_STATS_LEN, stats);
 }
 
 void ah_splat_release(void* ctx) { delete static_cast<Context*>(ctx); }

@@ -21,7 +21,7 @@
 extern "C" {
 #endif
 
-#define AH_SPLAT_ABI_VERSION 1
+#define AH_SPLAT_ABI_VERSION 2
 #define AH_LOG_SCALE_MIN -23.0f  // scale 1e-10
 #define AH_LOG_SCALE_MAX 11.5f   // scale ~1e5
 
@@ -58,7 +58,11 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
                       float* d_means, float* d_log_scales, float* d_quats, float* d_opacity_logits,
                       float* d_colors, char* err, int32_t err_len);
 
-// stats[0] = Gaussians that survived culling, stats[1] = tile intersections.
+// AH_SPLAT_STATS_LEN entries: Gaussians that survived culling, tile intersections, then
+// wall-clock nanoseconds of the phases: projection, sort and binning, compositing (the
+// forward's three), backward compositing, backward per-Gaussian reduction and projection VJP
+// (0 before the backward ran).
+#define AH_SPLAT_STATS_LEN 7
 void ah_splat_stats(const void* ctx, int64_t* stats);
 
 void ah_splat_release(void* ctx);
