@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "binning.hpp"
+#include "dispatch.hpp"
 #include "projection.hpp"
 #include "raster.hpp"
 
@@ -67,6 +68,11 @@ bool check_params(const ah_splat_params* p, char* err, int32_t err_len) {
     return true;
 }
 
+Kernels& active_kernels() {
+    static Kernels k = kernels_for(best_isa());
+    return k;
+}
+
 int thread_count(const ah_splat_params& p) {
     return p.num_threads > 0 ? p.num_threads : omp_get_max_threads();
 }
@@ -74,6 +80,7 @@ int thread_count(const ah_splat_params& p) {
 struct Context {
     ah_splat_params params;
     Camera cam;
+    Kernels kernels;  // the forward's, so that its backward runs the same lanes
     int64_t n;
     std::vector<float> means, log_scales, quats, logits, colors;
     Projected proj;
@@ -83,7 +90,8 @@ struct Context {
     // Wall-clock seconds of the phases, for the benchmark's split (ah_splat_stats).
     double t_project = 0, t_bin = 0, t_composite = 0, t_bwd_composite = 0, t_bwd_project = 0;
 
-    Context(const ah_splat_params& p, int64_t n_) : params(p), cam(p), n(n_) {}
+    Context(const ah_splat_params& p, int64_t n_)
+        : params(p), cam(p), kernels(active_kernels()), n(n_) {}
 };
 
 template <typename T>
@@ -155,7 +163,7 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     C.last.assign(pixels, 0);
     const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t) {
-        composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
+        C.kernels.composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
                           C.last.data());
     });
     C.t_composite = omp_get_wtime() - t0;
@@ -168,7 +176,7 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
     const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s) {
-        composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth, C.T_final.data(),
+        C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth, C.T_final.data(),
                            C.last.data(), &C.bins.slot_of[s], entry_grad.data());
     });
     const double t1 = omp_get_wtime();
@@ -216,6 +224,15 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
 extern "C" {
 
 int32_t ah_splat_abi_version(void) { return AH_SPLAT_ABI_VERSION; }
+
+int32_t ah_splat_select_isa(int32_t isa) {
+    if (isa == AH_ISA_AUTO) isa = best_isa();
+    if (!isa_supported(isa)) return -1;
+    active_kernels() = kernels_for(isa);
+    return isa;
+}
+
+int32_t ah_splat_isa_supported(int32_t isa) { return isa_supported(isa) ? 1 : 0; }
 
 int ah_splat_project(const ah_splat_params* params, int64_t n, const float* means,
                      const float* log_scales, const float* quats, const float* opacity_logits,
@@ -293,7 +310,7 @@ void ah_splat_stats(const void* ctx, int64_t* stats) {
         int64_t(C->bins.sorted.size()), int64_t(C->bins.tile_ids.size()),
         ns(C->t_project),               ns(C->t_bin),
         ns(C->t_composite),             ns(C->t_bwd_composite),
-        ns(C->t_bwd_project)};
+        ns(C->t_bwd_project),           C->kernels.isa};
     std::copy(out, out + AH_SPLAT_STATS_LEN, stats);
 }
 

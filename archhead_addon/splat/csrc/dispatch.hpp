@@ -1,0 +1,91 @@
+// Run-time choice of the instruction set for the hot loops. The library is compiled for
+// baseline x86-64 (no -march=native: it must load on any x86-64); the compositing loops are
+// also compiled for AVX2 and AVX-512 (GCC on x86-64), and ah_splat_select_isa picks the
+// best the CPU has, or the one asked for (the tests run each against the reference).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "raster.hpp"
+#include "splat.h"
+
+namespace ah {
+
+typedef void (*CompositeForwardFn)(const std::vector<TileSplat>&, const TileFrame&, const float*,
+                                   float*, float*, float*, float*, int32_t*);
+typedef void (*CompositeBackwardFn)(const std::vector<TileSplat>&, const TileFrame&,
+                                    const float*, const float*, const float*, const float*,
+                                    const float*, const int32_t*, const int64_t*, float*);
+
+struct Kernels {
+    int32_t isa;  // AH_ISA_*
+    CompositeForwardFn composite_forward;
+    CompositeBackwardFn composite_backward;
+};
+
+// The template once per instruction set. Baseline: SSE2 on x86-64 (each 8-lane operation
+// split in two), or the plain build elsewhere.
+namespace baseline {
+#include "raster_lanes.hpp"
+}  // namespace baseline
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define AH_X86_DISPATCH 1
+namespace avx2 {
+#pragma GCC push_options
+#pragma GCC target("avx2")
+#include "raster_lanes.hpp"
+#pragma GCC pop_options
+}  // namespace avx2
+
+namespace avx512 {
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx512bw,avx512dq,avx512vl")
+#include "raster_lanes.hpp"
+#pragma GCC pop_options
+}  // namespace avx512
+#endif
+
+// Whether this CPU (and build) can run `isa`.
+inline bool isa_supported(int32_t isa) {
+#ifdef AH_X86_DISPATCH
+    __builtin_cpu_init();  // may run before the library's constructors
+#endif
+    switch (isa) {
+        case AH_ISA_BASELINE:
+            return true;
+#ifdef AH_X86_DISPATCH
+        case AH_ISA_AVX2:
+            return __builtin_cpu_supports("avx2");
+        case AH_ISA_AVX512:
+            return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+                   __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl");
+#endif
+        default:
+            return false;
+    }
+}
+
+inline Kernels kernels_for(int32_t isa) {
+    switch (isa) {
+#ifdef AH_X86_DISPATCH
+        case AH_ISA_AVX512:
+            return {isa, avx512::Raster<16>::composite_forward,
+                    avx512::Raster<16>::composite_backward};
+        case AH_ISA_AVX2:
+            return {isa, avx2::Raster<8>::composite_forward, avx2::Raster<8>::composite_backward};
+#endif
+        default:
+            return {AH_ISA_BASELINE, baseline::Raster<8>::composite_forward,
+                    baseline::Raster<8>::composite_backward};
+    }
+}
+
+inline int32_t best_isa() {
+    for (int32_t isa : {AH_ISA_AVX512, AH_ISA_AVX2})
+        if (isa_supported(isa)) return isa;
+    return AH_ISA_BASELINE;
+}
+
+}  // namespace ah
