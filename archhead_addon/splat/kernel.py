@@ -241,9 +241,8 @@ def project(g: SplatFrame, settings: RasterSettings) -> Projected:
     return out
 
 
-_COUNTS = ("visible", "intersections")
-_STATS = (*_COUNTS, "project_ms", "bin_ms", "composite_ms", "bwd_composite_ms", "bwd_project_ms",
-          "simd")  # fmt: skip
+_STATS = ("visible", "intersections", "project_ms", "bin_ms", "composite_ms", "bwd_composite_ms",
+          "bwd_project_ms", "simd", "lanes_evaluated", "lanes_used")  # fmt: skip
 
 
 class ForwardContext:
@@ -263,13 +262,16 @@ class ForwardContext:
     def stats(self) -> dict[str, float]:
         """Counts (visible Gaussians, tile intersections) and the last forward's and
         backward's phase times in ms (projection, sort and binning, compositing; backward
-        compositing, backward per-Gaussian reduction and projection VJP), and the SIMD path
-        (a key of SIMD) the forward ran."""
+        compositing, backward per-Gaussian reduction and projection VJP), the SIMD path (a
+        key of SIMD) the forward ran, and its compositing's pixel lanes: evaluated, and used
+        (those that composited a sample)."""
         out = (ctypes.c_int64 * len(_STATS))()
         library().ah_splat_stats(self.handle, out)
-        stats = {name: v * 1e-6 for name, v in zip(_STATS, out, strict=True)}
-        stats.update(visible=int(out[0]), intersections=int(out[1]))
-        stats["simd"] = next(k for k, v in SIMD.items() if v == out[-1])
+        stats = dict(zip(_STATS, out, strict=True))
+        for name in _STATS:
+            if name.endswith("_ms"):
+                stats[name] *= 1e-6
+        stats["simd"] = next(k for k, v in SIMD.items() if v == stats["simd"])
         return stats
 
     def release(self) -> None:

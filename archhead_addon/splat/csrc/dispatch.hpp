@@ -13,7 +13,7 @@
 namespace ah {
 
 typedef void (*CompositeForwardFn)(const std::vector<TileSplat>&, const TileFrame&, const float*,
-                                   float*, float*, float*, float*, int32_t*);
+                                   float*, float*, float*, float*, int32_t*, int64_t*);
 typedef void (*CompositeBackwardFn)(const std::vector<TileSplat>&, const TileFrame&,
                                     const float*, const float*, const float*, const float*,
                                     const float*, const int32_t*, const int64_t*, float*);

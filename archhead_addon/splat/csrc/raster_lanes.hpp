@@ -88,8 +88,9 @@ struct Lanes {
         int32_t *last, *live;
     };
 
-    // Composites sample j (1-based count jj) of Gaussian s into the L pixels at p.
-    static void forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre,
+    // Composites sample j (1-based count jj) of Gaussian s into the L pixels at p; returns
+    // the lanes that composited it (-1) for the benchmark's lane counts.
+    static vi forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre,
                              float dy, vi jj) {
         const Falloff fo = falloff(s, centre, dy);
         const vi lv = load(S.live + p);
@@ -106,6 +107,13 @@ struct Lanes {
         store(S.T + p, use ? nT : Tp);
         store(S.last + p, use ? jj : load(S.last + p));
         store(S.live + p, lv & ~stop);
+        return use;
+    }
+
+    static int64_t count(vi used) {  // used: minus the number of lanes used, per lane
+        int64_t n = 0;
+        for (int i = 0; i < L; ++i) n -= used[i];
+        return n;
     }
 
     struct BackwardState {
@@ -172,10 +180,12 @@ struct Raster {
     static bool wide_row(const TileSplat& s) { return kHasWide && s.col0 < 8 && s.col1 >= 8; }
 
     // Front-to-back compositing of one tile. Writes rgb/alpha/depth for the tile's pixels
-    // and the per-pixel final transmittance and contributor count for the backward pass.
+    // and the per-pixel final transmittance and contributor count for the backward pass;
+    // lanes[0] = pixel lanes evaluated, lanes[1] = those that composited a sample.
     static void composite_forward(const std::vector<TileSplat>& G, const TileFrame& f,
                                   const float* background, float* rgb, float* alpha,
-                                  float* depth, float* T_final, int32_t* last_out) {
+                                  float* depth, float* T_final, int32_t* last_out,
+                                  int64_t* lanes) {
         alignas(64) float T[kTilePixels], cr[kTilePixels], cg[kTilePixels], cb[kTilePixels],
             cz[kTilePixels];
         alignas(64) int32_t live[kTilePixels], last[kTilePixels];
@@ -192,6 +202,9 @@ struct Raster {
             }
         const typename N::vf centre[2] = {N::lane_centres(0), N::lane_centres(1)};
         const typename W::vf centre_wide = W::lane_centres(0);
+        typename N::vi used{};
+        typename W::vi used_wide{};
+        int64_t steps = 0, wide_steps = 0;
         const int64_t n = int64_t(G.size());
         for (int64_t j = 0; j < n; ++j) {
             if (j % kLiveCheck == 0) {
@@ -209,11 +222,14 @@ struct Raster {
                 if (!row_live[py]) continue;
                 const float dy = s.y - (float(py) + 0.5f);
                 if (wide) {
-                    W::forward_step(SW, s, py * kTile, centre_wide, dy, W::splat_i(j + 1));
+                    used_wide += W::forward_step(SW, s, py * kTile, centre_wide, dy,
+                                                 W::splat_i(j + 1));
+                    ++wide_steps;
                     continue;
                 }
-                for (int h = s.col0 / 8; h <= s.col1 / 8; ++h)
-                    N::forward_step(SN, s, py * kTile + h * 8, centre[h], dy, N::splat_i(j + 1));
+                for (int h = s.col0 / 8; h <= s.col1 / 8; ++h, ++steps)
+                    used += N::forward_step(SN, s, py * kTile + h * 8, centre[h], dy,
+                                            N::splat_i(j + 1));
             }
         }
 
@@ -229,6 +245,8 @@ struct Raster {
                 T_final[o] = T[p];
                 last_out[o] = last[p];
             }
+        lanes[0] = 8 * steps + Wide * wide_steps;
+        lanes[1] = N::count(used) + W::count(used_wide);
     }
 
     // Back-to-front pass over one tile: transmittance is recovered by dividing out each

@@ -89,6 +89,7 @@ struct Context {
     std::vector<int32_t> last;
     // Wall-clock seconds of the phases, for the benchmark's split (ah_splat_stats).
     double t_project = 0, t_bin = 0, t_composite = 0, t_bwd_composite = 0, t_bwd_project = 0;
+    int64_t lanes_evaluated = 0, lanes_used = 0;  // compositing's pixel lanes (forward)
 
     Context(const ah_splat_params& p, int64_t n_)
         : params(p), cam(p), kernels(active_kernels()), n(n_) {}
@@ -139,7 +140,7 @@ TileFrame frame_of(const Context& C, int64_t tile) {
                      C.params.width, C.params.height};
 }
 
-// Runs body(G, frame, first_entry) for every tile in parallel, G holding the tile's splats
+// Runs body(G, frame, first_entry, tile) for every tile in parallel, G holding the tile's splats
 // gathered front to back; dynamic scheduling because tiles differ widely in load.
 template <class Body>
 void for_each_tile(Context& C, Body&& body) {
@@ -152,7 +153,7 @@ void for_each_tile(Context& C, Body&& body) {
             const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
             const TileFrame f = frame_of(C, t);
             gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox, f.oy);
-            body(G, f, s);
+            body(G, f, s, t);
         }
     }
 }
@@ -161,12 +162,17 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     const int64_t pixels = int64_t(C.params.width) * C.params.height;
     C.T_final.assign(pixels, 1.0f);
     C.last.assign(pixels, 0);
+    std::vector<int64_t> lanes(2 * (C.bins.tile_start.size() - 1));
     const double t0 = omp_get_wtime();
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t) {
+    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t, int64_t t) {
         C.kernels.composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
-                          C.last.data());
+                                    C.last.data(), &lanes[2 * t]);
     });
     C.t_composite = omp_get_wtime() - t0;
+    for (size_t t = 0; t < lanes.size(); t += 2) {
+        C.lanes_evaluated += lanes[t];
+        C.lanes_used += lanes[t + 1];
+    }
 }
 
 void backward(Context& C, const float* g_rgb, const float* g_alpha, const float* g_depth,
@@ -175,7 +181,7 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     const int64_t n = C.n;
     std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
     const double t0 = omp_get_wtime();
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s) {
+    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t) {
         C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth, C.T_final.data(),
                            C.last.data(), &C.bins.slot_of[s], entry_grad.data());
     });
@@ -310,7 +316,8 @@ void ah_splat_stats(const void* ctx, int64_t* stats) {
         int64_t(C->bins.sorted.size()), int64_t(C->bins.tile_ids.size()),
         ns(C->t_project),               ns(C->t_bin),
         ns(C->t_composite),             ns(C->t_bwd_composite),
-        ns(C->t_bwd_project),           C->kernels.isa};
+        ns(C->t_bwd_project),           C->kernels.isa,
+        C->lanes_evaluated,             C->lanes_used};
     std::copy(out, out + AH_SPLAT_STATS_LEN, stats);
 }
 

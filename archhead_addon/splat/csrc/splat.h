@@ -61,8 +61,9 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
 // AH_SPLAT_STATS_LEN entries: Gaussians that survived culling, tile intersections, then
 // wall-clock nanoseconds of the phases: projection, sort and binning, compositing (the
 // forward's three), backward compositing, backward per-Gaussian reduction and projection VJP
-// (0 before the backward ran); last the AH_ISA_* the forward ran with.
-#define AH_SPLAT_STATS_LEN 8
+// (0 before the backward ran); the AH_ISA_* the forward ran with; the forward compositing's
+// pixel lanes evaluated, and those of them that composited a sample.
+#define AH_SPLAT_STATS_LEN 10
 void ah_splat_stats(const void* ctx, int64_t* stats);
 
 void ah_splat_release(void* ctx);
