@@ -1,7 +1,8 @@
 // Run-time choice of the instruction set for the hot loops. The library is compiled for
-// baseline x86-64 (no -march=native: it must load on any x86-64); the compositing loops are
-// also compiled for AVX2 and AVX-512 (GCC on x86-64), and ah_splat_select_isa picks the
-// best the CPU has, or the one asked for (the tests run each against the reference).
+// baseline x86-64 (no -march=native: it must load on any x86-64); the projection and the
+// compositing loops are also compiled for AVX2 and AVX-512 (GCC on x86-64), and
+// ah_splat_select_isa picks the best the CPU has, or the one asked for (the tests run each
+// against the reference).
 #pragma once
 
 #include <cstdint>
@@ -18,15 +19,23 @@ typedef void (*CompositeBackwardFn)(const std::vector<TileSplat>&, const TileFra
                                     const float*, const float*, const float*, const float*,
                                     const float*, const int32_t*, const int64_t*, float*);
 
+typedef void (*ProjectRangeFn)(const Camera&, const Gaussians&, int64_t, int64_t,
+                               const ProjectOut&);
+typedef void (*VjpRangeFn)(const Camera&, const Gaussians&, const int32_t*, const double*,
+                           int64_t, int64_t, const GradOut&);
+
 struct Kernels {
     int32_t isa;  // AH_ISA_*
+    ProjectRangeFn project_range;
+    VjpRangeFn vjp_range;
     CompositeForwardFn composite_forward;
     CompositeBackwardFn composite_backward;
 };
 
-// The template once per instruction set. Baseline: SSE2 on x86-64 (each 8-lane operation
-// split in two), or the plain build elsewhere.
+// The templates once per instruction set. Baseline: SSE2 on x86-64 (each wide operation
+// split in two or four), or the plain build elsewhere.
 namespace baseline {
+#include "projection_lanes.hpp"
 #include "raster_lanes.hpp"
 }  // namespace baseline
 
@@ -35,6 +44,7 @@ namespace baseline {
 namespace avx2 {
 #pragma GCC push_options
 #pragma GCC target("avx2")
+#include "projection_lanes.hpp"
 #include "raster_lanes.hpp"
 #pragma GCC pop_options
 }  // namespace avx2
@@ -42,6 +52,7 @@ namespace avx2 {
 namespace avx512 {
 #pragma GCC push_options
 #pragma GCC target("avx512f,avx512bw,avx512dq,avx512vl")
+#include "projection_lanes.hpp"
 #include "raster_lanes.hpp"
 #pragma GCC pop_options
 }  // namespace avx512
@@ -71,13 +82,15 @@ inline Kernels kernels_for(int32_t isa) {
     switch (isa) {
 #ifdef AH_X86_DISPATCH
         case AH_ISA_AVX512:
-            return {isa, avx512::Raster<16>::composite_forward,
-                    avx512::Raster<16>::composite_backward};
+            return {isa, avx512::ProjectLanes<8>::project_range, avx512::ProjectLanes<8>::vjp_range,
+                    avx512::Raster<16>::composite_forward, avx512::Raster<16>::composite_backward};
         case AH_ISA_AVX2:
-            return {isa, avx2::Raster<8>::composite_forward, avx2::Raster<8>::composite_backward};
+            return {isa, avx2::ProjectLanes<4>::project_range, avx2::ProjectLanes<4>::vjp_range,
+                    avx2::Raster<8>::composite_forward, avx2::Raster<8>::composite_backward};
 #endif
         default:
-            return {AH_ISA_BASELINE, baseline::Raster<8>::composite_forward,
+            return {AH_ISA_BASELINE, baseline::ProjectLanes<4>::project_range,
+                    baseline::ProjectLanes<4>::vjp_range, baseline::Raster<8>::composite_forward,
                     baseline::Raster<8>::composite_backward};
     }
 }

@@ -27,10 +27,6 @@ namespace {
 
 using namespace ah;
 
-// Gradients are computed in double; huge but finite ones (e.g. through the normalisation of
-// a 1e-30 quaternion) saturate instead of overflowing float32 to Inf.
-float saturate(double x) { return float(std::clamp(x, -double(FLT_MAX), double(FLT_MAX))); }
-
 void set_error(char* err, int32_t err_len, const char* msg) {
     if (err && err_len > 0) std::snprintf(err, size_t(err_len), "%s", msg);
 }
@@ -100,6 +96,20 @@ std::vector<T> copy_of(const T* data, int64_t count) {
     return count > 0 ? std::vector<T>(data, data + count) : std::vector<T>();
 }
 
+constexpr int64_t kProjectBlock = 256;  // Gaussians per parallel work item (a lane multiple)
+
+Gaussians inputs(const Context& C) {
+    return Gaussians{C.means.data(), C.log_scales.data(), C.quats.data(), C.logits.data()};
+}
+
+// Projects every Gaussian into out with the kernels' projection, in parallel blocks.
+void project_blocks(const Kernels& K, const Camera& cam, const Gaussians& g, int64_t n,
+                    const ProjectOut& out, int threads) {
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int64_t b = 0; b < n; b += kProjectBlock)
+        K.project_range(cam, g, b, std::min(b + kProjectBlock, n), out);
+}
+
 void project_all(Context& C) {
     const int64_t n = C.n;
     C.proj.mean2d.assign(2 * n, 0.0);
@@ -110,21 +120,10 @@ void project_all(Context& C) {
     std::vector<double> depth64(n, 0.0);
     std::vector<uint8_t> visible(n, 0);
     const double t0 = omp_get_wtime();
-#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
-        const Projection P = project_gaussian(C.cam, &C.means[3 * i], &C.log_scales[3 * i],
-                                              &C.quats[4 * i], C.logits[i]);
-        Bounds B;
-        if (!P.visible || !screen_bounds(C.cam, P, B)) continue;
-        visible[i] = 1;
-        C.proj.mean2d[2 * i] = P.mean2d[0];
-        C.proj.mean2d[2 * i + 1] = P.mean2d[1];
-        for (int k = 0; k < 3; ++k) C.proj.conic[3 * i + k] = float(P.conic[k]);
-        C.proj.opacity[i] = float(P.opacity);
-        C.proj.depth[i] = float(P.tc[2]);
-        depth64[i] = P.tc[2];
-        for (int k = 0; k < 4; ++k) C.proj.bbox[4 * i + k] = B.bbox[k];
-    }
+    const ProjectOut out{C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(),
+                         C.proj.depth.data(),  depth64.data(),      C.proj.bbox.data(),
+                         visible.data(),       nullptr};
+    project_blocks(C.kernels, C.cam, inputs(C), n, out, thread_count(C.params));
     const double t1 = omp_get_wtime();
     C.t_project = t1 - t0;
     std::vector<int32_t> ids;
@@ -193,35 +192,27 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     std::memset(d_quats, 0, sizeof(float) * 4 * n);
     std::memset(d_logits, 0, sizeof(float) * n);
     std::memset(d_colors, 0, sizeof(float) * 3 * n);
+    // Each visible Gaussian sums its own tile records (contiguous, in tile order), then its
+    // projection is recomputed and differentiated L Gaussians at a time.
     const int64_t n_visible = int64_t(C.bins.sorted.size());
-#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
+    const int threads = thread_count(C.params);
+    std::vector<double> acc(n_visible * kEntryGrad, 0.0);
+#pragma omp parallel for num_threads(threads) schedule(static)
     for (int64_t k = 0; k < n_visible; ++k) {
-        const int32_t i = C.bins.sorted[k];
-        double acc[kEntryGrad] = {0};
+        double* a = &acc[k * kEntryGrad];
         for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
             const float* e = &entry_grad[q * kEntryGrad];
-            for (int c = 0; c < kEntryGrad; ++c) acc[c] += e[c];
+            for (int c = 0; c < kEntryGrad; ++c) a[c] += e[c];
         }
-        ProjectionGrad g;
-        g.mean2d[0] = acc[0];
-        g.mean2d[1] = acc[1];
-        g.conic[0] = acc[2];
-        g.conic[1] = acc[3];
-        g.conic[2] = acc[4];
-        g.opacity = acc[5];
-        g.depth = acc[9];
-        const Projection P = project_gaussian(C.cam, &C.means[3 * i], &C.log_scales[3 * i],
-                                              &C.quats[4 * i], C.logits[i]);
-        double dm[3], dls[3], dq[4], dl;
-        project_gaussian_vjp(C.cam, P, g, dm, dls, dq, &dl);
-        for (int c = 0; c < 3; ++c) {
-            d_means[3 * i + c] = saturate(dm[c]);
-            d_log_scales[3 * i + c] = saturate(dls[c]);
-            d_colors[3 * i + c] = saturate(acc[6 + c]);
-        }
-        for (int c = 0; c < 4; ++c) d_quats[4 * i + c] = saturate(dq[c]);
-        d_logits[i] = saturate(dl);
+        const int32_t i = C.bins.sorted[k];
+        for (int c = 0; c < 3; ++c) d_colors[3 * i + c] = saturate(a[6 + c]);
     }
+    const GradOut out{d_means, d_log_scales, d_quats, d_logits};
+    const Gaussians g = inputs(C);
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int64_t b = 0; b < n_visible; b += kProjectBlock)
+        C.kernels.vjp_range(C.cam, g, C.bins.sorted.data(), acc.data(), b,
+                            std::min(b + kProjectBlock, n_visible), out);
     C.t_bwd_project = omp_get_wtime() - t1;
 }
 
@@ -246,20 +237,18 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
                      int32_t* radii, char* err, int32_t err_len) {
     if (!check_params(params, err, err_len)) return -1;
     const Camera cam(*params);
-#pragma omp parallel for num_threads(thread_count(*params)) schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
-        const Projection P = project_gaussian(cam, &means[3 * i], &log_scales[3 * i], &quats[4 * i],
-                                              opacity_logits[i]);
-        Bounds B;
-        const bool visible = P.visible && screen_bounds(cam, P, B);
-        means2d[2 * i] = visible ? P.mean2d[0] : 0.0;
-        means2d[2 * i + 1] = visible ? P.mean2d[1] : 0.0;
-        for (int k = 0; k < 3; ++k) conics[3 * i + k] = visible ? float(P.conic[k]) : 0.0f;
-        depths[i] = visible ? float(P.tc[2]) : 0.0f;
-        opacities[i] = visible ? float(P.opacity) : 0.0f;
-        radii[2 * i] = visible ? int32_t(std::ceil(B.radius[0])) : 0;
-        radii[2 * i + 1] = visible ? int32_t(std::ceil(B.radius[1])) : 0;
-    }
+    std::memset(means2d, 0, sizeof(double) * 2 * n);
+    std::memset(conics, 0, sizeof(float) * 3 * n);
+    std::memset(depths, 0, sizeof(float) * n);
+    std::memset(opacities, 0, sizeof(float) * n);
+    std::memset(radii, 0, sizeof(int32_t) * 2 * n);
+    std::vector<double> depth64(n);
+    std::vector<int32_t> bbox(4 * n);
+    std::vector<uint8_t> visible(n);
+    const ProjectOut out{means2d, conics, opacities, depths, depth64.data(), bbox.data(),
+                         visible.data(), radii};
+    project_blocks(active_kernels(), cam, Gaussians{means, log_scales, quats, opacity_logits}, n,
+                   out, thread_count(*params));
     return 0;
 }
 
