@@ -15,14 +15,14 @@ namespace ah {
 
 typedef void (*CompositeForwardFn)(const std::vector<TileSplat>&, const TileFrame&, const float*,
                                    float*, float*, float*, float*, int32_t*, int64_t*);
-typedef void (*CompositeBackwardFn)(const std::vector<TileSplat>&, const TileFrame&,
+typedef void (*CompositeBackwardFn)(const std::vector<TileSplat>&, const TileFrame&, const float*,
                                     const float*, const float*, const float*, const float*,
-                                    const float*, const int32_t*, const int64_t*, float*);
+                                    const int32_t*, const int64_t*, float*);
 
 typedef void (*ProjectRangeFn)(const Camera&, const Gaussians&, int64_t, int64_t,
                                const ProjectOut&);
-typedef void (*VjpRangeFn)(const Camera&, const Gaussians&, const int32_t*, const double*,
-                           int64_t, int64_t, const GradOut&);
+typedef void (*VjpRangeFn)(const Camera&, const Gaussians&, const int32_t*, const double*, int64_t,
+                           int64_t, const GradOut&);
 
 struct Kernels {
     int32_t isa;  // AH_ISA_*
@@ -83,15 +83,18 @@ inline Kernels kernels_for(int32_t isa) {
 #ifdef AH_X86_DISPATCH
         case AH_ISA_AVX512:
             return {isa, avx512::ProjectLanes<8>::project_range, avx512::ProjectLanes<8>::vjp_range,
-                    avx512::Raster<16>::composite_forward, avx512::Raster<16>::composite_backward};
+                    avx512::Raster<avx512::PairSteps>::composite_forward,
+                    avx512::Raster<avx512::PairSteps>::composite_backward};
         case AH_ISA_AVX2:
             return {isa, avx2::ProjectLanes<4>::project_range, avx2::ProjectLanes<4>::vjp_range,
-                    avx2::Raster<8>::composite_forward, avx2::Raster<8>::composite_backward};
+                    avx2::Raster<avx2::RowSteps>::composite_forward,
+                    avx2::Raster<avx2::RowSteps>::composite_backward};
 #endif
         default:
             return {AH_ISA_BASELINE, baseline::ProjectLanes<4>::project_range,
-                    baseline::ProjectLanes<4>::vjp_range, baseline::Raster<8>::composite_forward,
-                    baseline::Raster<8>::composite_backward};
+                    baseline::ProjectLanes<4>::vjp_range,
+                    baseline::Raster<baseline::RowSteps>::composite_forward,
+                    baseline::Raster<baseline::RowSteps>::composite_backward};
     }
 }
 

@@ -69,10 +69,10 @@ struct ProjectLanes {
         vm visible;
         vd qn[4], qnorm;
         vd s[3];
-        vm s_active[3];     // log-scale inside the clamp range (gradient passes)
-        vd R[9], VM[9];     // rotation; V R diag(s)
-        vd Sc[9];           // camera-space covariance VM VM^T
-        vd tc[3];           // camera-space mean
+        vm s_active[3];         // log-scale inside the clamp range (gradient passes)
+        vd R[9], VM[9];         // rotation; V R diag(s)
+        vd Sc[9];               // camera-space covariance VM VM^T
+        vd tc[3];               // camera-space mean
         vd rx_ratio, ry_ratio;  // clamped x/z and y/z used in J
         vm x_free, y_free;      // clamp inactive
         vd J[6];
@@ -128,8 +128,8 @@ struct ProjectLanes {
 
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j)
-                P.VM[3 * i + j] = cam.V[3 * i] * M[j] + cam.V[3 * i + 1] * M[3 + j] +
-                                  cam.V[3 * i + 2] * M[6 + j];
+                P.VM[3 * i + j] =
+                    cam.V[3 * i] * M[j] + cam.V[3 * i + 1] * M[3 + j] + cam.V[3 * i + 2] * M[6 + j];
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j)
                 P.Sc[3 * i + j] = P.VM[3 * i] * P.VM[3 * j] + P.VM[3 * i + 1] * P.VM[3 * j + 1] +
@@ -199,8 +199,8 @@ struct ProjectLanes {
         const vd ga = g.conic[0], gb = 0.5 * g.conic[1], gc = g.conic[2];
         const vd CG00 = ca * ga + cb * gb, CG01 = ca * gb + cb * gc;
         const vd CG10 = cb * ga + cc * gb, CG11 = cb * gb + cc * gc;
-        vd dcov[4] = {-(CG00 * ca + CG01 * cb), -(CG00 * cb + CG01 * cc),
-                      -(CG10 * ca + CG11 * cb), -(CG10 * cb + CG11 * cc)};
+        vd dcov[4] = {-(CG00 * ca + CG01 * cb), -(CG00 * cb + CG01 * cc), -(CG10 * ca + CG11 * cb),
+                      -(CG10 * cb + CG11 * cc)};
 
         if (cam.antialiased) {
             // comp = sqrt(det_orig / det); d det(A)/dA = adj(A)^T. No gradient where comp = 0.
@@ -229,8 +229,8 @@ struct ProjectLanes {
         vd dJ[6];
         for (int i = 0; i < 2; ++i)
             for (int j = 0; j < 3; ++j)
-                dJ[3 * i + j] = (dcov[2 * i] + dcov[i]) * JSc[j] +
-                                (dcov[2 * i + 1] + dcov[2 + i]) * JSc[3 + j];
+                dJ[3 * i + j] =
+                    (dcov[2 * i] + dcov[i]) * JSc[j] + (dcov[2 * i + 1] + dcov[2 + i]) * JSc[3 + j];
         vd dSc[9];
         for (int a = 0; a < 3; ++a)
             for (int b = 0; b < 3; ++b)
@@ -261,8 +261,8 @@ struct ProjectLanes {
                                  tmp[3 * i + 2] * P.VM[6 + j];
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j)
-                dM[3 * i + j] = cam.V[i] * dVM[j] + cam.V[3 + i] * dVM[3 + j] +
-                                cam.V[6 + i] * dVM[6 + j];
+                dM[3 * i + j] =
+                    cam.V[i] * dVM[j] + cam.V[3 + i] * dVM[3 + j] + cam.V[6 + i] * dVM[6 + j];
 
         // M = R diag(s)
         vd dR[9];

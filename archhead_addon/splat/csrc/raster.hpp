@@ -1,11 +1,11 @@
 // Per-tile compositing, forward and backward. One thread owns a whole 16x16 tile and
-// walks its Gaussians in depth order; for each Gaussian it updates the rows of the tile
-// that the Gaussian's box covers, L pixels at a time with GCC vector extensions (explicit,
-// so the code vectorises whatever the optimiser's heuristics). `Raster<L>` (raster_lanes.hpp)
-// is compiled once per instruction set (dispatch.hpp picks one at run time); this file holds
-// what they share. Every lane runs the same float operations in the same order, so the
-// images are bitwise identical across the paths (gradients differ by the order of the lane
-// sums only).
+// walks its Gaussians in depth order; for each Gaussian it updates the pixels of the tile
+// that the Gaussian's box covers, 8 (one row, AVX2) or 16 (8 columns x 2 rows, AVX-512) at a
+// time with GCC vector extensions (explicit, so the code vectorises whatever the optimiser's
+// heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once per instruction set
+// (dispatch.hpp picks one at run time); this file holds what they share. Every lane runs
+// the same float operations in the same order, so the images are bitwise identical across
+// the paths (gradients differ by the order of the lane sums only).
 #pragma once
 
 #include <algorithm>

@@ -1,16 +1,14 @@
-// `Raster<Wide>`, compositing with vectors of up to Wide pixels. No include guard: dispatch.hpp includes
-// this file once per instruction set, each time inside its own namespace and
-// `#pragma GCC target` region, so that every function of the template, helpers included,
-// is compiled for that instruction set (a target attribute on an outer function alone lets
-// GCC lower the wide vector compares of the helpers to scalar code before inlining them).
-// Include raster.hpp first.
+// `Raster<Layout>`, the compositing loops over a tile in steps of 8 or 16 pixel lanes. No
+// include guard: dispatch.hpp includes this file once per instruction set, each time inside
+// its own namespace and `#pragma GCC target` region, so that every function of the
+// templates, helpers included, is compiled for that instruction set (a target attribute on
+// an outer function alone lets GCC lower the wide vector compares of the helpers to scalar
+// code before inlining them). Include raster.hpp first.
 
-// One L-pixel step of the compositing loops (L divides the tile width: a tile row is
-// kTile / L chunks).
+// One step of the compositing loops over L pixels of the tile state.
 template <int L>
 struct Lanes {
-    static_assert(kTile % L == 0, "a vector must not straddle tile rows");
-    static constexpr int kChunks = kTile / L;
+    static constexpr int kWidth = L;
     typedef typename Vectors<L>::f vf;
     typedef typename Vectors<L>::i vi;
 
@@ -65,7 +63,9 @@ struct Lanes {
         vi ok;  // power <= 0 and a >= 1/255 (also false for NaN)
     };
 
-    static Falloff falloff(const TileSplat& s, vf px_centre, float dy) {
+    // dy: a float (one row) or a vector (a row per lane).
+    template <class DY>
+    static Falloff falloff(const TileSplat& s, vf px_centre, DY dy) {
         Falloff f;
         f.dx = s.x - px_centre;
         f.power = -0.5f * (s.ca * f.dx * f.dx + s.cc * dy * dy) - s.cb * f.dx * dy;
@@ -88,14 +88,15 @@ struct Lanes {
         int32_t *last, *live;
     };
 
-    // Composites sample j (1-based count jj) of Gaussian s into the L pixels at p; returns
-    // the lanes that composited it (-1) for the benchmark's lane counts.
-    static vi forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre,
-                             float dy, vi jj) {
+    // Composites sample j (1-based count jj) of Gaussian s into the L pixels at p, those of
+    // them in `valid`; returns the lanes that composited it (-1) for the lane counts.
+    template <class DY>
+    static vi forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre, DY dy,
+                           vi jj, vi valid) {
         const Falloff fo = falloff(s, centre, dy);
         const vi lv = load(S.live + p);
         const vf Tp = load(S.T + p);
-        const vi ok = fo.ok & lv;
+        const vi ok = fo.ok & lv & valid;
         const vf nT = Tp * (1.0f - fo.a);
         const vi stop = ok & (nT < kTransmittanceMin);
         const vi use = ok & ~stop;
@@ -129,17 +130,19 @@ struct Lanes {
 
         // Lane sums added to sums: m_x, m_y, m_xx, m_xy, m_yy, d_op, d_r, d_g, d_b, d_z.
         void add_to(float* sums) const {
-            const vf* v[kEntryGrad] = {&m_x, &m_y, &m_xx, &m_xy, &m_yy,
-                                       &d_op, &d_r, &d_g, &d_b, &d_z};
+            const vf* v[kEntryGrad] = {&m_x,  &m_y, &m_xx, &m_xy, &m_yy,
+                                       &d_op, &d_r, &d_g,  &d_b,  &d_z};
             for (int c = 0; c < kEntryGrad; ++c) sums[c] += lane_sum(*v[c]);
         }
     };
 
-    // Un-composites sample j (index jj) of Gaussian s at the L pixels at p, back to front.
+    // Un-composites sample j (index jj) of Gaussian s at the L pixels at p (those in
+    // `valid`), back to front.
+    template <class DY>
     static void backward_step(const BackwardState& S, Moments& M, const TileSplat& s, int p,
-                              vf centre, float dy, vi jj) {
+                              vf centre, DY dy, vi jj, vi valid) {
         const Falloff fo = falloff(s, centre, dy);
-        const vi ok = fo.ok & (jj < load(S.last + p));
+        const vi ok = fo.ok & (jj < load(S.last + p)) & valid;
         const vf a = ok ? fo.a : splat(0.0f);
         const vf inv_one_minus = 1.0f / (1.0f - a);
         const vf Tj = load(S.T + p) * inv_one_minus;
@@ -168,74 +171,108 @@ struct Lanes {
     }
 };
 
-// Compositing of a tile, 8 pixels a step; with Wide = 16, a row the Gaussian covers in both
-// halves takes one 16-pixel step instead of two (AVX-512: no lane is evaluated that the
-// 8-pixel path would not evaluate, in fewer instructions).
-template <int Wide>
-struct Raster {
-    typedef Lanes<8> N;
-    typedef Lanes<Wide> W;
-    static constexpr bool kHasWide = Wide == kTile;
+// Row-major tile state, one 8-pixel chunk of one row per step (AVX2, baseline).
+struct RowSteps {
+    typedef Lanes<8> V;
+    static constexpr int kSize = kTilePixels;
+    static int at(int px, int py) { return py * kTile + px; }
+    static bool row_any(const int32_t* mask, int py) {
+        return V::any(V::load(mask + at(0, py)) | V::load(mask + at(8, py)));
+    }
+    // step(p, centre, dy, valid) for each step of s's box in the rows with active(py).
+    template <class Active, class Step>
+    static void steps(const TileSplat& s, Active active, Step step) {
+        const V::vi all = V::splat_i(-1);
+        for (int py = s.row0; py <= s.row1; ++py) {
+            if (!active(py)) continue;
+            const float dy = s.y - (float(py) + 0.5f);
+            for (int h = s.col0 / 8; h <= s.col1 / 8; ++h)
+                step(at(8 * h, py), V::lane_centres(h), dy, all);
+        }
+    }
+};
 
-    static bool wide_row(const TileSplat& s) { return kHasWide && s.col0 < 8 && s.col1 >= 8; }
+// Tile state stored half by half (8 columns x 16 rows, then a padding row), so that two
+// rows of one half are 16 contiguous values: one 16-lane step covers 8 columns x 2 rows,
+// and a Gaussian takes ceil(rows / 2) steps per half its box reaches (AVX-512). (Pairs
+// aligned to even rows evaluate more lanes and measured no faster.)
+struct PairSteps {
+    typedef Lanes<16> V;
+    static constexpr int kHalf = 8 * (kTile + 1);
+    static constexpr int kSize = 2 * kHalf;
+    static int at(int px, int py) { return (px / 8) * kHalf + py * 8 + px % 8; }
+    static bool row_any(const int32_t* mask, int py) {
+        typedef Lanes<8> H;
+        return H::any(H::load(mask + at(0, py)) | H::load(mask + at(8, py)));
+    }
+    template <class Active, class Step>
+    static void steps(const TileSplat& s, Active active, Step step) {
+        V::vf centre[2], row_offset;
+        V::vi upper;  // the lanes of the pair's first row
+        for (int i = 0; i < 16; ++i) {
+            centre[0][i] = float(i % 8) + 0.5f;
+            centre[1][i] = float(8 + i % 8) + 0.5f;
+            row_offset[i] = float(i / 8) + 0.5f;  // py + 1.5 == (py + 1) + 0.5 exactly
+            upper[i] = i < 8 ? -1 : 0;
+        }
+        const V::vi both = V::splat_i(-1);
+        for (int h = s.col0 / 8; h <= s.col1 / 8; ++h)
+            for (int py = s.row0; py <= s.row1; py += 2) {
+                const bool second = py < s.row1;
+                if (!active(py) && !(second && active(py + 1))) continue;
+                const V::vf dy = s.y - (float(py) + row_offset);
+                step(at(8 * h, py), centre[h], dy, second ? both : upper);
+            }
+    }
+};
+
+// Compositing of a tile with the steps of Layout (RowSteps or PairSteps).
+template <class Layout>
+struct Raster {
+    typedef typename Layout::V V;
+    static constexpr int kSize = Layout::kSize;
 
     // Front-to-back compositing of one tile. Writes rgb/alpha/depth for the tile's pixels
     // and the per-pixel final transmittance and contributor count for the backward pass;
     // lanes[0] = pixel lanes evaluated, lanes[1] = those that composited a sample.
     static void composite_forward(const std::vector<TileSplat>& G, const TileFrame& f,
-                                  const float* background, float* rgb, float* alpha,
-                                  float* depth, float* T_final, int32_t* last_out,
-                                  int64_t* lanes) {
-        alignas(64) float T[kTilePixels], cr[kTilePixels], cg[kTilePixels], cb[kTilePixels],
-            cz[kTilePixels];
-        alignas(64) int32_t live[kTilePixels], last[kTilePixels];
-        const typename N::ForwardState SN{T, cr, cg, cb, cz, last, live};
-        const typename W::ForwardState SW{T, cr, cg, cb, cz, last, live};
+                                  const float* background, float* rgb, float* alpha, float* depth,
+                                  float* T_final, int32_t* last_out, int64_t* lanes) {
+        alignas(64) float T[kSize], cr[kSize], cg[kSize], cb[kSize], cz[kSize];
+        alignas(64) int32_t live[kSize], last[kSize];
+        std::fill_n(T, kSize, 1.0f);
+        for (float* c : {cr, cg, cb, cz}) std::fill_n(c, kSize, 0.0f);
+        std::fill_n(last, kSize, 0);
+        std::fill_n(live, kSize, 0);  // padding and pixels outside the image stay 0
+        for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
+            for (int px = 0; px < kTile && f.ox + px < f.width; ++px) live[Layout::at(px, py)] = -1;
+        const typename V::ForwardState S{T, cr, cg, cb, cz, last, live};
         bool row_live[kTile];
-        for (int py = 0; py < kTile; ++py)
-            for (int px = 0; px < kTile; ++px) {
-                const int p = py * kTile + px;
-                T[p] = 1.0f;
-                cr[p] = cg[p] = cb[p] = cz[p] = 0.0f;
-                last[p] = 0;
-                live[p] = f.ox + px < f.width && f.oy + py < f.height ? -1 : 0;
-            }
-        const typename N::vf centre[2] = {N::lane_centres(0), N::lane_centres(1)};
-        const typename W::vf centre_wide = W::lane_centres(0);
-        typename N::vi used{};
-        typename W::vi used_wide{};
-        int64_t steps = 0, wide_steps = 0;
+        typename V::vi used{};
+        int64_t steps = 0;
         const int64_t n = int64_t(G.size());
         for (int64_t j = 0; j < n; ++j) {
             if (j % kLiveCheck == 0) {
                 bool tile_live = false;
                 for (int py = 0; py < kTile; ++py) {
-                    const int p = py * kTile;
-                    row_live[py] = N::any(N::load(live + p) | N::load(live + p + 8));
+                    row_live[py] = Layout::row_any(live, py);
                     tile_live |= row_live[py];
                 }
                 if (!tile_live) break;
             }
             const TileSplat& s = G[j];
-            const bool wide = wide_row(s);
-            for (int py = s.row0; py <= s.row1; ++py) {
-                if (!row_live[py]) continue;
-                const float dy = s.y - (float(py) + 0.5f);
-                if (wide) {
-                    used_wide += W::forward_step(SW, s, py * kTile, centre_wide, dy,
-                                                 W::splat_i(j + 1));
-                    ++wide_steps;
-                    continue;
-                }
-                for (int h = s.col0 / 8; h <= s.col1 / 8; ++h, ++steps)
-                    used += N::forward_step(SN, s, py * kTile + h * 8, centre[h], dy,
-                                            N::splat_i(j + 1));
-            }
+            const typename V::vi jj = V::splat_i(int32_t(j + 1));
+            Layout::steps(
+                s, [&](int py) { return row_live[py]; },
+                [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
+                    used += V::forward_step(S, s, p, centre, dy, jj, valid);
+                    ++steps;
+                });
         }
 
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
             for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
-                const int p = py * kTile + px;
+                const int p = Layout::at(px, py);
                 const int64_t o = int64_t(f.oy + py) * f.width + (f.ox + px);
                 rgb[3 * o] = cr[p] + T[p] * background[0];
                 rgb[3 * o + 1] = cg[p] + T[p] * background[1];
@@ -245,8 +282,8 @@ struct Raster {
                 T_final[o] = T[p];
                 last_out[o] = last[p];
             }
-        lanes[0] = 8 * steps + Wide * wide_steps;
-        lanes[1] = N::count(used) + W::count(used_wide);
+        lanes[0] = V::kWidth * steps;
+        lanes[1] = V::count(used);
     }
 
     // Back-to-front pass over one tile: transmittance is recovered by dividing out each
@@ -255,24 +292,18 @@ struct Raster {
     // entry_grad + slot[j] * kEntryGrad.
     static void composite_backward(const std::vector<TileSplat>& G, const TileFrame& f,
                                    const float* background, const float* g_rgb,
-                                   const float* g_alpha, const float* g_depth,
-                                   const float* T_final, const int32_t* last_in,
-                                   const int64_t* slot, float* entry_grad) {
-        alignas(64) float T[kTilePixels], behind[kTilePixels], gr[kTilePixels],
-            gg[kTilePixels], gb[kTilePixels], gz[kTilePixels];
-        alignas(64) int32_t last[kTilePixels];
-        const typename N::BackwardState SN{T, behind, gr, gg, gb, gz, last};
-        const typename W::BackwardState SW{T, behind, gr, gg, gb, gz, last};
-        int row_last[kTile];
+                                   const float* g_alpha, const float* g_depth, const float* T_final,
+                                   const int32_t* last_in, const int64_t* slot, float* entry_grad) {
+        alignas(64) float T[kSize], behind[kSize], gr[kSize], gg[kSize], gb[kSize], gz[kSize];
+        alignas(64) int32_t last[kSize];
+        std::fill_n(T, kSize, 1.0f);
+        for (float* c : {behind, gr, gg, gb, gz}) std::fill_n(c, kSize, 0.0f);
+        std::fill_n(last, kSize, 0);  // no sample is drawn at padding or outside the image
+        int row_last[kTile] = {0};
         int tile_last = 0;
-        for (int py = 0; py < kTile; ++py) {
-            row_last[py] = 0;
-            for (int px = 0; px < kTile; ++px) {
-                const int p = py * kTile + px;
-                T[p] = 1.0f;
-                behind[p] = gr[p] = gg[p] = gb[p] = gz[p] = 0.0f;
-                last[p] = 0;
-                if (f.ox + px >= f.width || f.oy + py >= f.height) continue;
+        for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
+            for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
+                const int p = Layout::at(px, py);
                 const int64_t o = int64_t(f.oy + py) * f.width + (f.ox + px);
                 gr[p] = g_rgb[3 * o];
                 gg[p] = g_rgb[3 * o + 1];
@@ -281,9 +312,9 @@ struct Raster {
                 const float ga = g_alpha ? g_alpha[o] : 0.0f;
                 T[p] = T_final[o];
                 // rgb = ... + T bg and alpha = 1 - T: dL/dT_final, times T_final.
-                behind[p] = (gr[p] * background[0] + gg[p] * background[1] +
-                             gb[p] * background[2] - ga) *
-                            T[p];
+                behind[p] =
+                    (gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2] - ga) *
+                    T[p];
                 last[p] = last_in[o];
                 row_last[py] = std::max(row_last[py], last[p]);
             }
@@ -294,29 +325,18 @@ struct Raster {
         const int64_t n_used = std::min<int64_t>(n, tile_last);
         for (int64_t j = n_used; j < n; ++j)
             std::fill_n(entry_grad + slot[j] * kEntryGrad, kEntryGrad, 0.0f);
-        const typename N::vf centre[2] = {N::lane_centres(0), N::lane_centres(1)};
-        const typename W::vf centre_wide = W::lane_centres(0);
+        const typename V::BackwardState S{T, behind, gr, gg, gb, gz, last};
         for (int64_t j = n_used - 1; j >= 0; --j) {
             const TileSplat& s = G[j];
-            const bool wide = wide_row(s);
-            typename N::Moments MN;
-            typename W::Moments MW;
-            for (int py = s.row0; py <= s.row1; ++py) {
-                if (row_last[py] <= j) continue;
-                const float dy = s.y - (float(py) + 0.5f);
-                if (wide) {
-                    W::backward_step(SW, MW, s, py * kTile, centre_wide, dy, W::splat_i(j));
-                    continue;
-                }
-                for (int h = s.col0 / 8; h <= s.col1 / 8; ++h)
-                    N::backward_step(SN, MN, s, py * kTile + h * 8, centre[h], dy,
-                                     N::splat_i(j));
-            }
+            const typename V::vi jj = V::splat_i(int32_t(j));
+            typename V::Moments M;
+            Layout::steps(
+                s, [&](int py) { return row_last[py] > j; },
+                [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
+                    V::backward_step(S, M, s, p, centre, dy, jj, valid);
+                });
             float m[kEntryGrad] = {0};
-            if (wide)
-                MW.add_to(m);
-            else
-                MN.add_to(m);
+            M.add_to(m);
             float* e = entry_grad + slot[j] * kEntryGrad;
             e[0] = -(s.ca * m[0] + s.cb * m[1]);  // dp/dmean_x = -(ca dx + cb dy)
             e[1] = -(s.cb * m[0] + s.cc * m[1]);

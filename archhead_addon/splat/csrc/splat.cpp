@@ -120,9 +120,9 @@ void project_all(Context& C) {
     std::vector<double> depth64(n, 0.0);
     std::vector<uint8_t> visible(n, 0);
     const double t0 = omp_get_wtime();
-    const ProjectOut out{C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(),
-                         C.proj.depth.data(),  depth64.data(),      C.proj.bbox.data(),
-                         visible.data(),       nullptr};
+    const ProjectOut out{
+        C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(), C.proj.depth.data(),
+        depth64.data(),       C.proj.bbox.data(),  visible.data(),        nullptr};
     project_blocks(C.kernels, C.cam, inputs(C), n, out, thread_count(C.params));
     const double t1 = omp_get_wtime();
     C.t_project = t1 - t0;
@@ -181,8 +181,9 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
     const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t) {
-        C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth, C.T_final.data(),
-                           C.last.data(), &C.bins.slot_of[s], entry_grad.data());
+        C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth,
+                                     C.T_final.data(), C.last.data(), &C.bins.slot_of[s],
+                                     entry_grad.data());
     });
     const double t1 = omp_get_wtime();
     C.t_bwd_composite = t1 - t0;
@@ -245,8 +246,8 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
     std::vector<double> depth64(n);
     std::vector<int32_t> bbox(4 * n);
     std::vector<uint8_t> visible(n);
-    const ProjectOut out{means2d, conics, opacities, depths, depth64.data(), bbox.data(),
-                         visible.data(), radii};
+    const ProjectOut out{means2d,        conics,      opacities,      depths,
+                         depth64.data(), bbox.data(), visible.data(), radii};
     project_blocks(active_kernels(), cam, Gaussians{means, log_scales, quats, opacity_logits}, n,
                    out, thread_count(*params));
     return 0;
@@ -301,12 +302,16 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
 void ah_splat_stats(const void* ctx, int64_t* stats) {
     const Context* C = static_cast<const Context*>(ctx);
     const auto ns = [](double seconds) { return int64_t(seconds * 1e9); };
-    const int64_t out[AH_SPLAT_STATS_LEN] = {
-        int64_t(C->bins.sorted.size()), int64_t(C->bins.tile_ids.size()),
-        ns(C->t_project),               ns(C->t_bin),
-        ns(C->t_composite),             ns(C->t_bwd_composite),
-        ns(C->t_bwd_project),           C->kernels.isa,
-        C->lanes_evaluated,             C->lanes_used};
+    const int64_t out[AH_SPLAT_STATS_LEN] = {int64_t(C->bins.sorted.size()),
+                                             int64_t(C->bins.tile_ids.size()),
+                                             ns(C->t_project),
+                                             ns(C->t_bin),
+                                             ns(C->t_composite),
+                                             ns(C->t_bwd_composite),
+                                             ns(C->t_bwd_project),
+                                             C->kernels.isa,
+                                             C->lanes_evaluated,
+                                             C->lanes_used};
     std::copy(out, out + AH_SPLAT_STATS_LEN, stats);
 }
 
