@@ -32,8 +32,9 @@ struct Kernels {
     CompositeBackwardFn composite_backward;
 };
 
-// The templates once per instruction set. Baseline: SSE2 on x86-64 (each wide operation
-// split in two or four), or the plain build elsewhere.
+// The templates once per instruction set. Baseline (SSE2 on x86-64, or the plain build
+// elsewhere) takes 128-bit vectors: 2 Gaussians, 4 pixels a step (wider GCC vectors have no
+// SSE2 compares and would be split into scalar code).
 namespace baseline {
 #include "projection_lanes.hpp"
 #include "raster_lanes.hpp"
@@ -87,14 +88,14 @@ inline Kernels kernels_for(int32_t isa) {
                     avx512::Raster<avx512::PairSteps>::composite_backward};
         case AH_ISA_AVX2:
             return {isa, avx2::ProjectLanes<4>::project_range, avx2::ProjectLanes<4>::vjp_range,
-                    avx2::Raster<avx2::RowSteps>::composite_forward,
-                    avx2::Raster<avx2::RowSteps>::composite_backward};
+                    avx2::Raster<avx2::RowSteps<8>>::composite_forward,
+                    avx2::Raster<avx2::RowSteps<8>>::composite_backward};
 #endif
         default:
-            return {AH_ISA_BASELINE, baseline::ProjectLanes<4>::project_range,
-                    baseline::ProjectLanes<4>::vjp_range,
-                    baseline::Raster<baseline::RowSteps>::composite_forward,
-                    baseline::Raster<baseline::RowSteps>::composite_backward};
+            return {AH_ISA_BASELINE, baseline::ProjectLanes<2>::project_range,
+                    baseline::ProjectLanes<2>::vjp_range,
+                    baseline::Raster<baseline::RowSteps<4>>::composite_forward,
+                    baseline::Raster<baseline::RowSteps<4>>::composite_backward};
     }
 }
 

@@ -68,6 +68,11 @@ struct Footprint {
 template <int L>
 struct DVectors;
 template <>
+struct DVectors<2> {
+    typedef double d __attribute__((vector_size(16)));
+    typedef int64_t m __attribute__((vector_size(16)));
+};
+template <>
 struct DVectors<4> {
     typedef double d __attribute__((vector_size(32)));
     typedef int64_t m __attribute__((vector_size(32)));

@@ -72,6 +72,11 @@ constexpr int kEntryGrad = 10;  // d mean2d (2), d conic (3), d opacity, d rgb (
 template <int L>
 struct Vectors;
 template <>
+struct Vectors<4> {
+    typedef float f __attribute__((vector_size(16)));
+    typedef int32_t i __attribute__((vector_size(16)));
+};
+template <>
 struct Vectors<8> {
     typedef float f __attribute__((vector_size(32)));
     typedef int32_t i __attribute__((vector_size(32)));

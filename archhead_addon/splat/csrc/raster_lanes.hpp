@@ -171,23 +171,27 @@ struct Lanes {
     }
 };
 
-// Row-major tile state, one 8-pixel chunk of one row per step (AVX2, baseline).
+// Row-major tile state, one chunk of L pixels of one row per step (AVX2: 8; baseline: 4,
+// as SSE2 has no 8-lane compares and GCC would split them into scalar code).
+template <int L>
 struct RowSteps {
-    typedef Lanes<8> V;
+    typedef Lanes<L> V;
     static constexpr int kSize = kTilePixels;
     static int at(int px, int py) { return py * kTile + px; }
     static bool row_any(const int32_t* mask, int py) {
-        return V::any(V::load(mask + at(0, py)) | V::load(mask + at(8, py)));
+        typename V::vi row{};
+        for (int h = 0; h < kTile / L; ++h) row |= V::load(mask + at(L * h, py));
+        return V::any(row);
     }
     // step(p, centre, dy, valid) for each step of s's box in the rows with active(py).
     template <class Active, class Step>
     static void steps(const TileSplat& s, Active active, Step step) {
-        const V::vi all = V::splat_i(-1);
+        const typename V::vi all = V::splat_i(-1);
         for (int py = s.row0; py <= s.row1; ++py) {
             if (!active(py)) continue;
             const float dy = s.y - (float(py) + 0.5f);
-            for (int h = s.col0 / 8; h <= s.col1 / 8; ++h)
-                step(at(8 * h, py), V::lane_centres(h), dy, all);
+            for (int h = s.col0 / L; h <= s.col1 / L; ++h)
+                step(at(L * h, py), V::lane_centres(h), dy, all);
         }
     }
 };
