@@ -76,9 +76,10 @@ struct Lanes {
         return f;
     }
 
-    static vf lane_centres(int chunk) {
+    // Pixel centres of columns first .. first + L - 1 (exact: small integers and halves).
+    static vf lane_centres(int first) {
         vf c;
-        for (int i = 0; i < L; ++i) c[i] = float(chunk * L + i) + 0.5f;
+        for (int i = 0; i < L; ++i) c[i] = float(first + i) + 0.5f;
         return c;
     }
 
@@ -183,15 +184,21 @@ struct RowSteps {
         for (int h = 0; h < kTile / L; ++h) row |= V::load(mask + at(L * h, py));
         return V::any(row);
     }
-    // step(p, centre, dy, valid) for each step of s's box in the rows with active(py).
+    // step(p, centre, dy, valid) for each step of s's box in the rows with active(py). Steps
+    // start at multiples of 4 columns (a box's span rounded to 4 pixels, not L), shifted
+    // back to stay inside the row, with the columns an earlier step covered masked off.
     template <class Active, class Step>
     static void steps(const TileSplat& s, Active active, Step step) {
-        const typename V::vi all = V::splat_i(-1);
+        typename V::vi lane;
+        for (int i = 0; i < L; ++i) lane[i] = i;
         for (int py = s.row0; py <= s.row1; ++py) {
             if (!active(py)) continue;
             const float dy = s.y - (float(py) + 0.5f);
-            for (int h = s.col0 / L; h <= s.col1 / L; ++h)
-                step(at(L * h, py), V::lane_centres(h), dy, all);
+            for (int col = s.col0 & ~3; col <= s.col1;) {
+                const int start = std::min(col, kTile - L);
+                step(at(start, py), V::lane_centres(start), dy, lane >= col - start);
+                col = start + L;
+            }
         }
     }
 };
