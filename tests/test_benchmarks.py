@@ -1,6 +1,7 @@
 """The benchmarks outside the package: every benchmark command the README and docs/ name
 exists where they say, and the splat kernel benchmark prints its table."""
 
+import os
 import re
 import subprocess
 import sys
@@ -47,6 +48,19 @@ def test_splat_kernel_benchmark_prints_its_table(repo_root, extra):
     ).stdout
     rows = [line for line in out.splitlines() if line.startswith("| 3,000 | 256²")]
     assert len(rows) == 1 and "Times in ms" in out
+
+
+def test_splat_versions_benchmark_prints_its_tables(repo_root):
+    """Quick scene, no earlier revision; OpenSplat is skipped without a checkout."""
+    env = {k: v for k, v in os.environ.items() if k != "ARCHHEAD_OPENSPLAT"}
+    out = subprocess.run(
+        [sys.executable, "benchmarks/splat_versions.py", "--quick", "--repeats", "1"]
+        + ["--before", "none"],
+        cwd=repo_root, check=True, capture_output=True, text=True, timeout=300, env=env,
+    ).stdout  # fmt: skip
+    assert "OpenSplat: skipped" in out
+    assert sum(line.startswith("| now, ") for line in out.splitlines()) >= 1
+    assert "| used / limit |" in out
 
 
 def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_subject, tmp_path):

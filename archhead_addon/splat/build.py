@@ -28,10 +28,16 @@ LIB_NAME = "libarchhead_splat.dylib" if sys.platform == "darwin" else "libarchhe
 LIB_PATH = BUILD_DIR / LIB_NAME
 STAMP_PATH = BUILD_DIR / (LIB_NAME + ".sha256")
 
-# No -march=native (the library must run on any x86-64; the hot loops carry their own AVX2
-# clone) and no -ffast-math (it breaks the NaN guards and the bitwise determinism).
-# -ffp-contract=off keeps forward and backward alpha tests bit-identical.
-FLAGS = ["-std=c++17", "-O3", "-fopenmp", "-shared", "-fPIC", "-ffp-contract=off", "-Wall"]
+# No -march=native (the library must run on any x86-64; the hot loops carry AVX2 and
+# AVX-512 versions chosen at run time, csrc/dispatch.hpp) and no -ffast-math (it breaks the
+# NaN guards and the bitwise determinism). -ffp-contract=off keeps forward and backward
+# alpha tests bit-identical, and the images identical across those versions. -Wno-psabi:
+# vectors passed between the hot loops' helpers, all in one translation unit, draw notes
+# about compatibility with code compiled for other instruction sets.
+FLAGS = [
+    "-std=c++17", "-O3", "-fopenmp", "-shared", "-fPIC", "-ffp-contract=off", "-Wall",
+    "-Wno-psabi",
+]  # fmt: skip
 COMPILERS = ("g++", "c++", "clang++")
 
 INSTALL_HINT = (

@@ -8,11 +8,16 @@ Gaussians come as a `SplatFrame` (frame.py; its fields by name, in the C ABI's o
   viewmat (4,4) world-to-camera, OpenCV axes (x right, y down, z forward); K (3,3) in
   pixels, pixel (i, j) centred at (i + 0.5, j + 0.5).
 Every input must be finite; a non-finite entry raises ValueError naming the array.
+
+The hot loops run with the best instruction set the CPU has (AVX-512, AVX2, baseline
+x86-64); `set_simd` or the environment variable ARCHHEAD_SPLAT_SIMD (read when the library
+loads) forces one, e.g. to test each against the reference.
 """
 
 from __future__ import annotations
 
 import ctypes
+import os
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -47,8 +52,10 @@ class _Params(ctypes.Structure):
     ]
 
 
-_ABI_VERSION = 1
+_ABI_VERSION = 2
 _lib: ctypes.CDLL | None = None
+SIMD = {"auto": -1, "baseline": 0, "avx2": 1, "avx512": 2}  # AH_ISA_* in csrc/splat.h
+SIMD_ENV = "ARCHHEAD_SPLAT_SIMD"
 
 
 def library() -> ctypes.CDLL:
@@ -115,8 +122,32 @@ def library() -> ctypes.CDLL:
     lib.ah_splat_stats.restype = None
     lib.ah_splat_release.argtypes = [ctypes.c_void_p]
     lib.ah_splat_release.restype = None
+    lib.ah_splat_select_isa.argtypes = [i32]
+    lib.ah_splat_select_isa.restype = i32
+    lib.ah_splat_isa_supported.argtypes = [i32]
+    lib.ah_splat_isa_supported.restype = i32
     _lib = lib
+    set_simd(os.environ.get(SIMD_ENV, "auto"))
     return lib
+
+
+def set_simd(name: str) -> str:
+    """Run the following forward passes (and their backward passes) with the instruction set
+    `name` (a key of SIMD; "auto": the best the CPU has) and return the one chosen. Raises
+    ValueError for an unknown name or one this CPU cannot run."""
+    if name not in SIMD:
+        raise ValueError(f"unknown splat SIMD {name!r} (from {SIMD_ENV}?): one of {list(SIMD)}")
+    isa = library().ah_splat_select_isa(SIMD[name])
+    if isa < 0:
+        raise ValueError(f"this CPU cannot run the splat kernel's {name} path")
+    return next(k for k, v in SIMD.items() if v == isa)
+
+
+def supported_simd() -> list[str]:
+    """The instruction sets (keys of SIMD but "auto") this CPU runs, best last."""
+    return [
+        name for name, isa in SIMD.items() if isa >= 0 and library().ah_splat_isa_supported(isa)
+    ]
 
 
 @dataclass(frozen=True)
@@ -210,6 +241,10 @@ def project(g: SplatFrame, settings: RasterSettings) -> Projected:
     return out
 
 
+_STATS = ("visible", "intersections", "project_ms", "bin_ms", "composite_ms", "bwd_composite_ms",
+          "bwd_project_ms", "simd", "lanes_evaluated", "lanes_used")  # fmt: skip
+
+
 class ForwardContext:
     """Owns the kernel state a backward pass needs; freed with the object."""
 
@@ -224,10 +259,20 @@ class ForwardContext:
             raise RuntimeError("the splat forward context was released")
         return self._handle
 
-    def stats(self) -> dict[str, int]:
-        out = (ctypes.c_int64 * 2)()
+    def stats(self) -> dict[str, float]:
+        """Counts (visible Gaussians, tile intersections) and the last forward's and
+        backward's phase times in ms (projection, sort and binning, compositing; backward
+        compositing, backward per-Gaussian reduction and projection VJP), the SIMD path (a
+        key of SIMD) the forward ran, and its compositing's pixel lanes: evaluated, and used
+        (those that composited a sample)."""
+        out = (ctypes.c_int64 * len(_STATS))()
         library().ah_splat_stats(self.handle, out)
-        return {"visible": int(out[0]), "intersections": int(out[1])}
+        stats = dict(zip(_STATS, out, strict=True))
+        for name in _STATS:
+            if name.endswith("_ms"):
+                stats[name] *= 1e-6
+        stats["simd"] = next(k for k, v in SIMD.items() if v == stats["simd"])
+        return stats
 
     def release(self) -> None:
         if self._handle and _lib is not None:

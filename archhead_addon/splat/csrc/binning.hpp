@@ -39,15 +39,16 @@ inline std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& ids,
 }
 
 // Tile lists. tile_start has tiles + 1 entries; tile_ids[tile_start[t] .. tile_start[t+1])
-// are the Gaussians touching tile t, front to back. For the backward reduction, the
-// intersections of the k-th sorted Gaussian are entry_of[isect_start[k] .. isect_start[k+1])
-// (positions in tile_ids, in increasing tile order).
+// are the Gaussians touching tile t, front to back. For the backward reduction, tile-list
+// entry p has the slot slot_of[p] in Gaussian order: the k-th sorted Gaussian owns slots
+// isect_start[k] .. isect_start[k+1] (its tiles in increasing order), so the tiles scatter
+// their gradient records there and each Gaussian reads its own contiguously.
 struct Bins {
     int tiles_x = 0, tiles_y = 0;
     std::vector<int32_t> sorted;  // visible Gaussians, front to back
     std::vector<int64_t> tile_start, isect_start;
     std::vector<int32_t> tile_ids;
-    std::vector<int64_t> entry_of;
+    std::vector<int64_t> slot_of;
 };
 
 // bbox: per Gaussian inclusive pixel ranges x0, x1, y0, y1 (4 ints). The sorted list is cut
@@ -90,7 +91,7 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
         B.tile_start[t + 1] = pos;
     }
     B.tile_ids.resize(B.tile_start[n_tiles]);
-    B.entry_of.resize(B.tile_start[n_tiles]);
+    B.slot_of.resize(B.tile_start[n_tiles]);
 #pragma omp parallel for num_threads(chunks) schedule(static, 1)
     for (int c = 0; c < chunks; ++c) {
         int64_t* pos = &cursor[size_t(c) * n_tiles];
@@ -102,7 +103,7 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
                 for (int tx = tx0; tx <= tx1; ++tx) {
                     const int64_t p = pos[int64_t(ty) * B.tiles_x + tx]++;
                     B.tile_ids[p] = B.sorted[k];
-                    B.entry_of[e++] = p;
+                    B.slot_of[p] = e++;
                 }
         }
     }

@@ -19,16 +19,13 @@
 #include <vector>
 
 #include "binning.hpp"
+#include "dispatch.hpp"
 #include "projection.hpp"
 #include "raster.hpp"
 
 namespace {
 
 using namespace ah;
-
-// Gradients are computed in double; huge but finite ones (e.g. through the normalisation of
-// a 1e-30 quaternion) saturate instead of overflowing float32 to Inf.
-float saturate(double x) { return float(std::clamp(x, -double(FLT_MAX), double(FLT_MAX))); }
 
 void set_error(char* err, int32_t err_len, const char* msg) {
     if (err && err_len > 0) std::snprintf(err, size_t(err_len), "%s", msg);
@@ -67,6 +64,11 @@ bool check_params(const ah_splat_params* p, char* err, int32_t err_len) {
     return true;
 }
 
+Kernels& active_kernels() {
+    static Kernels k = kernels_for(best_isa());
+    return k;
+}
+
 int thread_count(const ah_splat_params& p) {
     return p.num_threads > 0 ? p.num_threads : omp_get_max_threads();
 }
@@ -74,19 +76,38 @@ int thread_count(const ah_splat_params& p) {
 struct Context {
     ah_splat_params params;
     Camera cam;
+    Kernels kernels;  // the forward's, so that its backward runs the same lanes
     int64_t n;
     std::vector<float> means, log_scales, quats, logits, colors;
     Projected proj;
     Bins bins;
     std::vector<float> T_final;
     std::vector<int32_t> last;
+    // Wall-clock seconds of the phases, for the benchmark's split (ah_splat_stats).
+    double t_project = 0, t_bin = 0, t_composite = 0, t_bwd_composite = 0, t_bwd_project = 0;
+    int64_t lanes_evaluated = 0, lanes_used = 0;  // compositing's pixel lanes (forward)
 
-    Context(const ah_splat_params& p, int64_t n_) : params(p), cam(p), n(n_) {}
+    Context(const ah_splat_params& p, int64_t n_)
+        : params(p), cam(p), kernels(active_kernels()), n(n_) {}
 };
 
 template <typename T>
 std::vector<T> copy_of(const T* data, int64_t count) {
     return count > 0 ? std::vector<T>(data, data + count) : std::vector<T>();
+}
+
+constexpr int64_t kProjectBlock = 256;  // Gaussians per parallel work item (a lane multiple)
+
+Gaussians inputs(const Context& C) {
+    return Gaussians{C.means.data(), C.log_scales.data(), C.quats.data(), C.logits.data()};
+}
+
+// Projects every Gaussian into out with the kernels' projection, in parallel blocks.
+void project_blocks(const Kernels& K, const Camera& cam, const Gaussians& g, int64_t n,
+                    const ProjectOut& out, int threads) {
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int64_t b = 0; b < n; b += kProjectBlock)
+        K.project_range(cam, g, b, std::min(b + kProjectBlock, n), out);
 }
 
 void project_all(Context& C) {
@@ -98,26 +119,19 @@ void project_all(Context& C) {
     C.proj.bbox.assign(4 * n, 0);
     std::vector<double> depth64(n, 0.0);
     std::vector<uint8_t> visible(n, 0);
-#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
-        const Projection P = project_gaussian(C.cam, &C.means[3 * i], &C.log_scales[3 * i],
-                                              &C.quats[4 * i], C.logits[i]);
-        Bounds B;
-        if (!P.visible || !screen_bounds(C.cam, P, B)) continue;
-        visible[i] = 1;
-        C.proj.mean2d[2 * i] = P.mean2d[0];
-        C.proj.mean2d[2 * i + 1] = P.mean2d[1];
-        for (int k = 0; k < 3; ++k) C.proj.conic[3 * i + k] = float(P.conic[k]);
-        C.proj.opacity[i] = float(P.opacity);
-        C.proj.depth[i] = float(P.tc[2]);
-        depth64[i] = P.tc[2];
-        for (int k = 0; k < 4; ++k) C.proj.bbox[4 * i + k] = B.bbox[k];
-    }
+    const double t0 = omp_get_wtime();
+    const ProjectOut out{
+        C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(), C.proj.depth.data(),
+        depth64.data(),       C.proj.bbox.data(),  visible.data(),        nullptr};
+    project_blocks(C.kernels, C.cam, inputs(C), n, out, thread_count(C.params));
+    const double t1 = omp_get_wtime();
+    C.t_project = t1 - t0;
     std::vector<int32_t> ids;
     for (int64_t i = 0; i < n; ++i)
         if (visible[i]) ids.push_back(int32_t(i));
     bin_tiles(C.bins, sort_by_depth(ids, depth64), C.proj.bbox, C.params.width, C.params.height,
               thread_count(C.params));
+    C.t_bin = omp_get_wtime() - t1;
 }
 
 TileFrame frame_of(const Context& C, int64_t tile) {
@@ -125,7 +139,7 @@ TileFrame frame_of(const Context& C, int64_t tile) {
                      C.params.width, C.params.height};
 }
 
-// Runs body(G, frame, first_entry) for every tile in parallel, G holding the tile's splats
+// Runs body(G, frame, first_entry, tile) for every tile in parallel, G holding the tile's splats
 // gathered front to back; dynamic scheduling because tiles differ widely in load.
 template <class Body>
 void for_each_tile(Context& C, Body&& body) {
@@ -138,7 +152,7 @@ void for_each_tile(Context& C, Body&& body) {
             const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
             const TileFrame f = frame_of(C, t);
             gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox, f.oy);
-            body(G, f, s);
+            body(G, f, s, t);
         }
     }
 }
@@ -147,10 +161,17 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     const int64_t pixels = int64_t(C.params.width) * C.params.height;
     C.T_final.assign(pixels, 1.0f);
     C.last.assign(pixels, 0);
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t) {
-        composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
-                          C.last.data());
+    std::vector<int64_t> lanes(2 * (C.bins.tile_start.size() - 1));
+    const double t0 = omp_get_wtime();
+    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t, int64_t t) {
+        C.kernels.composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
+                                    C.last.data(), &lanes[2 * t]);
     });
+    C.t_composite = omp_get_wtime() - t0;
+    for (size_t t = 0; t < lanes.size(); t += 2) {
+        C.lanes_evaluated += lanes[t];
+        C.lanes_used += lanes[t + 1];
+    }
 }
 
 void backward(Context& C, const float* g_rgb, const float* g_alpha, const float* g_depth,
@@ -158,45 +179,42 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
               float* d_colors) {
     const int64_t n = C.n;
     std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s) {
-        composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth, C.T_final.data(),
-                           C.last.data(), &entry_grad[s * kEntryGrad]);
+    const double t0 = omp_get_wtime();
+    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t) {
+        C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth,
+                                     C.T_final.data(), C.last.data(), &C.bins.slot_of[s],
+                                     entry_grad.data());
     });
+    const double t1 = omp_get_wtime();
+    C.t_bwd_composite = t1 - t0;
 
     std::memset(d_means, 0, sizeof(float) * 3 * n);
     std::memset(d_log_scales, 0, sizeof(float) * 3 * n);
     std::memset(d_quats, 0, sizeof(float) * 4 * n);
     std::memset(d_logits, 0, sizeof(float) * n);
     std::memset(d_colors, 0, sizeof(float) * 3 * n);
+    // Each visible Gaussian sums its own tile records (contiguous, in tile order), then its
+    // projection is recomputed and differentiated L Gaussians at a time.
     const int64_t n_visible = int64_t(C.bins.sorted.size());
-#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
+    const int threads = thread_count(C.params);
+    std::vector<double> acc(n_visible * kEntryGrad, 0.0);
+#pragma omp parallel for num_threads(threads) schedule(static)
     for (int64_t k = 0; k < n_visible; ++k) {
-        const int32_t i = C.bins.sorted[k];
-        double acc[kEntryGrad] = {0};
+        double* a = &acc[k * kEntryGrad];
         for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
-            const float* e = &entry_grad[C.bins.entry_of[q] * kEntryGrad];
-            for (int c = 0; c < kEntryGrad; ++c) acc[c] += e[c];
+            const float* e = &entry_grad[q * kEntryGrad];
+            for (int c = 0; c < kEntryGrad; ++c) a[c] += e[c];
         }
-        ProjectionGrad g;
-        g.mean2d[0] = acc[0];
-        g.mean2d[1] = acc[1];
-        g.conic[0] = acc[2];
-        g.conic[1] = acc[3];
-        g.conic[2] = acc[4];
-        g.opacity = acc[5];
-        g.depth = acc[9];
-        const Projection P = project_gaussian(C.cam, &C.means[3 * i], &C.log_scales[3 * i],
-                                              &C.quats[4 * i], C.logits[i]);
-        double dm[3], dls[3], dq[4], dl;
-        project_gaussian_vjp(C.cam, P, g, dm, dls, dq, &dl);
-        for (int c = 0; c < 3; ++c) {
-            d_means[3 * i + c] = saturate(dm[c]);
-            d_log_scales[3 * i + c] = saturate(dls[c]);
-            d_colors[3 * i + c] = saturate(acc[6 + c]);
-        }
-        for (int c = 0; c < 4; ++c) d_quats[4 * i + c] = saturate(dq[c]);
-        d_logits[i] = saturate(dl);
+        const int32_t i = C.bins.sorted[k];
+        for (int c = 0; c < 3; ++c) d_colors[3 * i + c] = saturate(a[6 + c]);
     }
+    const GradOut out{d_means, d_log_scales, d_quats, d_logits};
+    const Gaussians g = inputs(C);
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int64_t b = 0; b < n_visible; b += kProjectBlock)
+        C.kernels.vjp_range(C.cam, g, C.bins.sorted.data(), acc.data(), b,
+                            std::min(b + kProjectBlock, n_visible), out);
+    C.t_bwd_project = omp_get_wtime() - t1;
 }
 
 }  // namespace
@@ -205,26 +223,33 @@ extern "C" {
 
 int32_t ah_splat_abi_version(void) { return AH_SPLAT_ABI_VERSION; }
 
+int32_t ah_splat_select_isa(int32_t isa) {
+    if (isa == AH_ISA_AUTO) isa = best_isa();
+    if (!isa_supported(isa)) return -1;
+    active_kernels() = kernels_for(isa);
+    return isa;
+}
+
+int32_t ah_splat_isa_supported(int32_t isa) { return isa_supported(isa) ? 1 : 0; }
+
 int ah_splat_project(const ah_splat_params* params, int64_t n, const float* means,
                      const float* log_scales, const float* quats, const float* opacity_logits,
                      double* means2d, float* conics, float* depths, float* opacities,
                      int32_t* radii, char* err, int32_t err_len) {
     if (!check_params(params, err, err_len)) return -1;
     const Camera cam(*params);
-#pragma omp parallel for num_threads(thread_count(*params)) schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
-        const Projection P = project_gaussian(cam, &means[3 * i], &log_scales[3 * i], &quats[4 * i],
-                                              opacity_logits[i]);
-        Bounds B;
-        const bool visible = P.visible && screen_bounds(cam, P, B);
-        means2d[2 * i] = visible ? P.mean2d[0] : 0.0;
-        means2d[2 * i + 1] = visible ? P.mean2d[1] : 0.0;
-        for (int k = 0; k < 3; ++k) conics[3 * i + k] = visible ? float(P.conic[k]) : 0.0f;
-        depths[i] = visible ? float(P.tc[2]) : 0.0f;
-        opacities[i] = visible ? float(P.opacity) : 0.0f;
-        radii[2 * i] = visible ? int32_t(std::ceil(B.radius[0])) : 0;
-        radii[2 * i + 1] = visible ? int32_t(std::ceil(B.radius[1])) : 0;
-    }
+    std::memset(means2d, 0, sizeof(double) * 2 * n);
+    std::memset(conics, 0, sizeof(float) * 3 * n);
+    std::memset(depths, 0, sizeof(float) * n);
+    std::memset(opacities, 0, sizeof(float) * n);
+    std::memset(radii, 0, sizeof(int32_t) * 2 * n);
+    std::vector<double> depth64(n);
+    std::vector<int32_t> bbox(4 * n);
+    std::vector<uint8_t> visible(n);
+    const ProjectOut out{means2d,        conics,      opacities,      depths,
+                         depth64.data(), bbox.data(), visible.data(), radii};
+    project_blocks(active_kernels(), cam, Gaussians{means, log_scales, quats, opacity_logits}, n,
+                   out, thread_count(*params));
     return 0;
 }
 
@@ -276,8 +301,18 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
 
 void ah_splat_stats(const void* ctx, int64_t* stats) {
     const Context* C = static_cast<const Context*>(ctx);
-    stats[0] = int64_t(C->bins.sorted.size());
-    stats[1] = int64_t(C->bins.tile_ids.size());
+    const auto ns = [](double seconds) { return int64_t(seconds * 1e9); };
+    const int64_t out[AH_SPLAT_STATS_LEN] = {int64_t(C->bins.sorted.size()),
+                                             int64_t(C->bins.tile_ids.size()),
+                                             ns(C->t_project),
+                                             ns(C->t_bin),
+                                             ns(C->t_composite),
+                                             ns(C->t_bwd_composite),
+                                             ns(C->t_bwd_project),
+                                             C->kernels.isa,
+                                             C->lanes_evaluated,
+                                             C->lanes_used};
+    std::copy(out, out + AH_SPLAT_STATS_LEN, stats);
 }
 
 void ah_splat_release(void* ctx) { delete static_cast<Context*>(ctx); }

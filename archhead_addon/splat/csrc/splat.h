@@ -21,7 +21,7 @@
 extern "C" {
 #endif
 
-#define AH_SPLAT_ABI_VERSION 1
+#define AH_SPLAT_ABI_VERSION 2
 #define AH_LOG_SCALE_MIN -23.0f  // scale 1e-10
 #define AH_LOG_SCALE_MAX 11.5f   // scale ~1e5
 
@@ -58,10 +58,27 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
                       float* d_means, float* d_log_scales, float* d_quats, float* d_opacity_logits,
                       float* d_colors, char* err, int32_t err_len);
 
-// stats[0] = Gaussians that survived culling, stats[1] = tile intersections.
+// AH_SPLAT_STATS_LEN entries: Gaussians that survived culling, tile intersections, then
+// wall-clock nanoseconds of the phases: projection, sort and binning, compositing (the
+// forward's three), backward compositing, backward per-Gaussian reduction and projection VJP
+// (0 before the backward ran); the AH_ISA_* the forward ran with; the forward compositing's
+// pixel lanes evaluated, and those of them that composited a sample.
+#define AH_SPLAT_STATS_LEN 10
 void ah_splat_stats(const void* ctx, int64_t* stats);
 
 void ah_splat_release(void* ctx);
+
+// Instruction sets of the hot loops, chosen at run time (the best the CPU has by default).
+#define AH_ISA_AUTO -1
+#define AH_ISA_BASELINE 0  // x86-64 SSE2, or the plain build on other architectures
+#define AH_ISA_AVX2 1
+#define AH_ISA_AVX512 2  // avx512f, bw, dq, vl
+// Selects the instruction set for the following forward passes (a backward uses its
+// forward's) and returns it; AH_ISA_AUTO picks the best supported. Returns -1, changing
+// nothing, when the CPU or the build lacks it. Not to be called while a render runs.
+int32_t ah_splat_select_isa(int32_t isa);
+// 1 when this CPU and build can run `isa`, else 0.
+int32_t ah_splat_isa_supported(int32_t isa);
 
 int32_t ah_splat_abi_version(void);
 
