@@ -19,7 +19,8 @@ from .importing import import_sequence
 from .state import STATE
 from .training import backend_python
 
-STAGES = ("detect", "fit", "write")  # in the order the backend reports them
+# in the order the backend reports them; "refine" only with the photometric refinement
+STAGES = ("detect", "fit", "write", "refine")
 LOG_NAME = "track.log"  # beside the output folder: the folder itself appears only at the end
 
 
@@ -35,7 +36,7 @@ class TrackingRun:
 
     @property
     def fraction(self) -> float:
-        """Progress over the three stages, each a third."""
+        """Progress over the stages, an equal share each."""
         s = self.status
         if s.stage not in STAGES or not s.total:
             return 0.0

@@ -2,6 +2,7 @@
 that is not a video fails with the backend's message and leaves no folder."""
 
 import bpy
+import numpy as np
 import pytest
 
 from archhead_addon.track.real_subject import fetch_media
@@ -15,14 +16,22 @@ def test_track_video_imports_the_tracked_head(addon, tmp_path):
     out = tmp_path / "tracked"
     before = {o.name for o in bpy.data.objects}
     result = bpy.ops.archhead.track_video(
-        video=str(fetch_media() / "single_face.mp4"), out_dir=str(out), frames=10, size=128
+        video=str(fetch_media() / "single_face.mp4"),
+        out_dir=str(out),
+        frames=10,
+        size=128,
+        static_offset=True,
     )
     assert result == {"FINISHED"}
     assert (out / "tracking.npz").is_file() and current_tracking() is None
     new = [bpy.data.objects[n] for n in {o.name for o in bpy.data.objects} - before]
     heads = {head_of(o) for o in new} - {None}
     assert [h.name for h in heads] == ["tracked"]
-    assert next(iter(heads)).get("archhead_frames") == 10
+    head = next(iter(heads))
+    assert head.get("archhead_frames") == 10
+    # the tracking's static offset travels with the head, for the avatar loaded onto it
+    offset = np.asarray(head["archhead_identity_offset"]).reshape(-1, 3)
+    assert offset.shape == (len(head.data.vertices), 3) and np.abs(offset).max() > 0
 
 
 def test_track_video_reports_a_bad_file(addon, tmp_path):

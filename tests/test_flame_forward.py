@@ -84,3 +84,20 @@ def test_code_width_errors_are_explicit():
     fewer = forward(model, expr=np.ones((1, 2)))
     padded = forward(model, expr=np.concatenate([np.ones((1, 2)), np.zeros((1, 4))], axis=1))
     np.testing.assert_allclose(fewer, padded, atol=1e-15)
+
+
+def test_static_offset_is_added_to_the_template_and_never_sets_the_batch():
+    """One frame's codes with a (V,3) offset pose one frame, not V copies of it."""
+    model = random_model()
+    codes = {k: v[0] for k, v in random_codes(model, batch=1).items()}
+    offset = np.random.default_rng(1).normal(scale=0.002, size=(model.n_verts, 3))
+    moved = forward(model, static_offset=offset, **codes)
+    assert moved.shape == (1, model.n_verts, 3)
+    torch_moved = FlameLayer(model, dtype=torch.float64)(static_offset=offset, **codes)
+    assert torch_moved.shape == (1, model.n_verts, 3)
+    assert _rel_err(torch_moved.numpy(), moved) <= 1e-6
+    # without any pose the offset is carried through unchanged
+    rest = forward(model, shape=codes["shape"])
+    np.testing.assert_allclose(
+        forward(model, shape=codes["shape"], static_offset=offset) - rest, offset[None], atol=1e-12
+    )

@@ -50,7 +50,10 @@ def batch_codes(model: FlameModel, codes: dict, xp=np):
     error (a sequence is fitted to the model, with a warning, before it gets here).
     """
     given = {k: v for k, v in codes.items() if v is not None}
-    batch = max((v.shape[0] for v in given.values() if v.ndim == 2), default=1)
+    # static_offset (V,3) is per vertex, not per frame: it never sets the batch
+    batch = max(
+        (v.shape[0] for k, v in given.items() if v.ndim == 2 and k != "static_offset"), default=1
+    )
     limits = {"shape": model.n_shape, "expr": model.n_expr, **CODE_DIMS}
     out = {}
     for key, width in limits.items():

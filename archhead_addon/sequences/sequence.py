@@ -152,19 +152,21 @@ class Sequence:
             self.shape, model.n_shape, self.source, "shape", "identity shape coefficients"
         )
         expr = _fit_width(self.expr, model.n_expr, self.source, "expr", "expression coefficients")
-        return replace(self, shape=shape, expr=expr, static_offset=self._fit_offset(model.n_verts))
+        return replace(self, shape=shape, expr=expr, static_offset=self._fit_offset(model))
 
-    def _fit_offset(self, n_verts: int) -> np.ndarray | None:
-        offset = self.static_offset
+    def _fit_offset(self, model) -> np.ndarray | None:
+        offset, n_verts = self.static_offset, model.n_verts
         if offset is None or len(offset) == n_verts:
             return offset
         if len(offset) < n_verts:  # the model appends vertices (teeth): they get no offset
-            warn_input(
-                self.source,
-                "static_offset",
-                f"{len(offset)} vertex offsets, the model "
-                f"has {n_verts} vertices: padded with {n_verts - len(offset)} zero rows",
-            )
+            teeth = model.extras.get("teeth")
+            if teeth is None or teeth["first_vertex"] != len(offset):  # not just the teeth
+                warn_input(
+                    self.source,
+                    "static_offset",
+                    f"{len(offset)} vertex offsets, the model "
+                    f"has {n_verts} vertices: padded with {n_verts - len(offset)} zero rows",
+                )
             return np.concatenate([offset, np.zeros((n_verts - len(offset), 3))])
         warn_input(
             self.source,

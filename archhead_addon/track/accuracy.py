@@ -46,6 +46,7 @@ def _vertices(model, seq: Sequence) -> np.ndarray:
         eyes=seq.eyes,
         rotation=seq.rotation,
         translation=seq.translation,
+        static_offset=seq.static_offset,
     )
 
 

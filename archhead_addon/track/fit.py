@@ -219,21 +219,23 @@ class ClipFit:
 
         return torch.exp(self.p["log_focal"])
 
-    def project_points(self, pts, focal, size):
-        """Pixels (...,2) of FLAME-space points (...,3) seen by the fixed camera."""
+    @staticmethod
+    def project_points(pts, focal, centre):
+        """Pixels (...,2) of FLAME-space points (...,3) seen by the fixed camera with focal
+        length `focal` and principal point `centre` (x, y) in pixels."""
         import torch
 
-        height, width = size
         cam_x, cam_y = pts[..., 0], -pts[..., 1]
         cam_z = (CAMERA_DISTANCE - pts[..., 2]).clamp_min(1e-3)
         return torch.stack(
-            [focal * cam_x / cam_z + width / 2, focal * cam_y / cam_z + height / 2], -1
+            [focal * cam_x / cam_z + centre[0], focal * cam_y / cam_z + centre[1]], -1
         )
 
     def project(self):
         verts = self.pose(self.layer, self.landmark_vertices)
         pts = (verts[:, self.corner_index] * self.bary[None, :, :, None]).sum(2)  # (T,478,3)
-        return self.project_points(pts, self.focal(), self.size)
+        height, width = self.size
+        return self.project_points(pts, self.focal(), (width / 2, height / 2))
 
     def _smooth(self, key):
         d = self.p[key][1:] - self.p[key][:-1]

@@ -25,7 +25,7 @@ def overlay(model: FlameModel, frame: np.ndarray, verts, K, w2c, alpha: float = 
 def overlay_sheet(data, model: FlameModel, picks: int = 6, width: int = 256) -> np.ndarray:
     """A row of `picks` frames spread over the clip: frame above, overlay below; uint8."""
     data = Path(data)
-    seq = read_sequence(data / TRACKING_FILE)
+    seq = read_sequence(data / TRACKING_FILE).fit_to_model(model)
     files = numbered_images(data / FRAMES_DIR)
     chosen = np.linspace(0, len(files) - 1, picks).round().astype(int)
     columns = []
@@ -40,6 +40,7 @@ def overlay_sheet(data, model: FlameModel, picks: int = 6, width: int = 256) -> 
             eyes=seq.eyes[i],
             rotation=seq.rotation[i],
             translation=seq.translation[i],
+            static_offset=seq.static_offset,
         )[0]
         columns.append(
             np.concatenate([frame, overlay(model, frame, verts, seq.K[i], seq.w2c[i])], axis=0)

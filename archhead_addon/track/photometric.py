@@ -117,23 +117,18 @@ def refine_photometric(
     n_frames, size = len(images), images.shape[1]
     points = FacePoints(fit.model, fit.emb)
     K, w2c = fixed_camera(float(fit.focal().item()), fit.size)
-    focal = float(crop_intrinsics(K, crop, size)[0, 0])
+    K = crop_intrinsics(K, crop, size)  # the crops' camera
     rotation = torch.from_numpy(w2c[:3, :3]).float()
     shift = torch.from_numpy(w2c[:3, 3]).float()
     # frames as (T,4,s,s): colour and mask sampled together
     stack = np.concatenate([images.astype(np.float32) / 255.0, masks[..., None]], axis=-1)
     pixels = torch.from_numpy(stack).permute(0, 3, 1, 2).contiguous()
-    x0, y0, side = crop
-    # the fixed camera's principal point seen through the crop, in crop pixels at `size`
-    centre = torch.tensor(
-        [(fit.size[1] / 2 - x0) * size / side, (fit.size[0] / 2 - y0) * size / side]
-    )
 
     def observe():
         """Sampled colours (B,P,3), weights (B,P) and normals in camera axes (B,P,3)."""
         verts = fit.pose(points.layer, points.ids)
         at, normals = points.place(verts)
-        px = fit.project_points(at, focal, (0, 0)) + centre
+        px = fit.project_points(at, K[0, 0], K[:2, 2])
         grid = (2 * px / size - 1)[:, :, None, :]  # (T,P,1,2), align_corners=False
         seen = torch.nn.functional.grid_sample(pixels, grid, align_corners=False)[..., 0]
         seen = seen.permute(0, 2, 1)  # (T,P,4)

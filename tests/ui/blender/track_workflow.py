@@ -86,7 +86,7 @@ def track_to_the_end(ui):
 
     yield from ui.wait_until(progressed, 200, "the tracking to finish", poll=0.3)
     ui.data["stages"] = seen
-    check([s for s, _ in seen] == ["detect", "fit", "write"], f"stages shown: {seen}")
+    check([s for s, _ in seen] == ["detect", "fit", "write", "refine"], f"stages shown: {seen}")
     fractions = [f for _, f in seen]
     check(fractions == sorted(fractions), f"progress went back: {seen}")
     head = bpy.data.objects.get("clip")
