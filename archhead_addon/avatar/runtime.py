@@ -19,13 +19,17 @@ a display up.
 from __future__ import annotations
 
 import functools
+import math
 import weakref
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 
 import numpy as np
 
 from ..flame.lbs import forward_full
 from ..flame.model import FlameModel
 from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
+from ..threads import one_blas_thread, thread_count
 from ..uv.raster import UVRaster, face_texel_scale
 from .bicubic import resize
 from .checkpoint_format import AvatarCheckpoint, checkpoint_mesh, read_checkpoint
@@ -36,15 +40,19 @@ from .lod import blend_weights, resolution_for_lod
 
 F32, F16 = np.float32, np.float16
 PRECISIONS = ("fp32", "fp16")
-CHUNK = 8192  # texels per pass through the decoder (its widest activations stay in cache)
+CHUNK = 8192  # most texels per pass through the decoder (its widest activations stay in cache)
 # Culling pays when it leaves out more than this share's complement: below, the gathers of
 # the kept texels cost about what decoding the others would.
 CULL_WORTH = 0.9
 
 
 class AvatarRuntime:
-    def __init__(self, ckpt: AvatarCheckpoint, flame=None, path=None, max_cached: int = 4):
+    def __init__(
+        self, ckpt: AvatarCheckpoint, flame=None, path=None, max_cached: int = 4, threads: int = 0
+    ):
+        """`threads`: how many threads decode chunks of texels at once (0: every core)."""
         self.config = cfg = ckpt.config
+        self.threads = thread_count(threads)
         self.mesh = checkpoint_mesh(ckpt, flame, path)
         self.head = _bake_identity(self.mesh, ckpt.identity_shape)
         self.raster = UVRaster(self.mesh.uv, self.mesh.uv_faces)
@@ -52,8 +60,6 @@ class AvatarRuntime:
             self.mesh.v_template, self.mesh.faces, self.mesh.uv, self.mesh.uv_faces
         )
         self.features = {s: ckpt.params[f"features.{s}"] for s in cfg.levels}
-        self.pe_centre = np.asarray(cfg.pe_centre, F32)
-        self.freqs = (2.0 ** np.arange(cfg.pe_freqs)).astype(F32)
         self._nets = {p: _Network(ckpt.params, cfg, half=p == "fp16") for p in PRECISIONS}
         # Through a weak reference: a cached bound method is a cycle (self -> cache -> self)
         # that only the cyclic collector frees, and a dropped runtime kept hundreds of MB
@@ -64,9 +70,9 @@ class AvatarRuntime:
         )
 
     @classmethod
-    def load(cls, path, flame=None, max_cached: int = 4) -> AvatarRuntime:
+    def load(cls, path, flame=None, max_cached: int = 4, threads: int = 0) -> AvatarRuntime:
         """`flame`: the FLAME model the avatar was trained on (FlameModel, file, None=built-in)."""
-        return cls(read_checkpoint(path), flame, path, max_cached)
+        return cls(read_checkpoint(path), flame, path, max_cached, threads)
 
     def resolution(self, lod: float) -> int:
         return resolution_for_lod(lod, self.config.s_max, self.config.s_min)[1]
@@ -153,11 +159,12 @@ class AvatarRuntime:
             ]
         )
         raw = net.decode(
-            self._encode(pos),
+            pos,
             level.get("first"),
             net.frame_bias(drive_in, l),
             colour_rows=3 * (degree + 1) ** 2,
             columns=columns,
+            threads=self.threads,
         )
 
         offsets = F32(cfg.offset_unit) * raw["offset"]
@@ -187,19 +194,6 @@ class AvatarRuntime:
         g = self.decode(lod, precision=precision)
         return reach(g.offsets, g.log_scales)
 
-    def _encode(self, pos: np.ndarray) -> np.ndarray:
-        """(pe_dim + 1, N) float32 from positions (3, N): p, sin(2^k p), cos(2^k p) (k-major,
-        then x, y, z), and a row of ones that carries the first layer's per-frame bias."""
-        n, k = pos.shape[1], 3 * len(self.freqs)
-        out = np.empty((3 + 2 * k + 1, n), F32)
-        p = out[:3]
-        np.subtract(pos, self.pe_centre[:, None], out=p)
-        a = (self.freqs[:, None, None] * p[None]).reshape(-1, n)
-        np.sin(a, out=out[3 : 3 + k])
-        np.cos(a, out=out[3 + k : 3 + 2 * k])
-        out[-1] = 1.0
-        return out
-
     def precision_error(self, lod: float = 0.0, **codes) -> dict[str, float]:
         """Largest absolute difference of every attribute, fp16 path against fp32."""
         full = self.decode(lod, precision="fp32", **codes)
@@ -213,8 +207,11 @@ class _Network:
 
     Activations are channel-major (channels, texels), the shape in which BLAS runs these
     long, thin products fastest here, and go through the decoder in chunks of texels so
-    the first layer's wide activations stay in cache. With half=True the weights and every
-    stored intermediate are rounded to float16 (`round`) while products accumulate in float32.
+    the first layer's wide activations stay in cache. The chunks are independent, and numpy
+    releases the GIL in its products and element-wise passes, so threads decode several at
+    once: the element-wise work, a third of a decode, runs on every core too, which BLAS's
+    own threads never did. With half=True the weights and every stored intermediate are
+    rounded to float16 (`round`) while products accumulate in float32.
     """
 
     def __init__(self, params: dict[str, np.ndarray], cfg, half: bool):
@@ -226,6 +223,8 @@ class _Network:
         def b(name):
             return self.round(params[name].astype(F32))[:, None]
 
+        self.pe_centre = np.asarray(cfg.pe_centre, F32)[:, None]
+        self.freqs = (2.0 ** np.arange(cfg.pe_freqs)).astype(F32)[:, None, None]
         self.mapping = [
             (w("mapping.0.weight"), b("mapping.0.bias")[:, 0]),
             (w("mapping.2.weight"), b("mapping.2.bias")[:, 0]),
@@ -273,22 +272,43 @@ class _Network:
         drive = self.round(np.tanh(w1 @ self.round(hidden) + b1))
         return self.round(self.w_drive @ drive + F32(lod) * self.w_lod + self.b_first)
 
+    def encode(self, pos: np.ndarray) -> np.ndarray:
+        """(pe_dim + 1, n) float32 from positions (3, n): p, sin(2^k p), cos(2^k p) (k-major,
+        then x, y, z), and a row of ones that carries the first layer's per-frame bias."""
+        n, k = pos.shape[1], 3 * len(self.freqs)
+        out = np.empty((3 + 2 * k + 1, n), F32)
+        p = out[:3]
+        np.subtract(pos, self.pe_centre, out=p)
+        # The angles in an array of their own: a ufunc whose input and output are views of
+        # one array takes numpy's overlap-safe path, 10x slower for sin and cos.
+        angles = (self.freqs * p[None]).reshape(-1, n)
+        np.sin(angles, out=out[3 : 3 + k])
+        np.cos(angles, out=out[3 + k : 3 + 2 * k])
+        out[-1] = 1.0
+        return self.round(out)
+
     def decode(
-        self, pe: np.ndarray, first, frame_bias: np.ndarray, colour_rows: int, columns=None
+        self,
+        pos: np.ndarray,
+        first,
+        frame_bias: np.ndarray,
+        colour_rows: int,
+        columns=None,
+        threads: int = 1,
     ) -> dict[str, np.ndarray]:
-        """Raw head outputs, (width, N) each, from the PE (pe_dim + 1, N); the colour head's
-        first `colour_rows` outputs only (its SH coefficients are coefficient-major).
-        `columns`: the texels of `first` that the PE's columns are (culling), gathered chunk
-        by chunk rather than copied whole."""
-        n = pe.shape[1]
+        """Raw head outputs, (width, N) each, from the texels' positions (3, N); the colour
+        head's first `colour_rows` outputs only (its SH coefficients are coefficient-major).
+        `columns`: the texels of `first` that the positions are (culling), gathered chunk
+        by chunk rather than copied whole. `threads` decode chunks at once."""
+        n = pos.shape[1]
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
         layers = dict(self.layers)
         hidden, (w_out, b_out) = layers["colour"]
         layers["colour"] = (hidden, (w_out[:colour_rows], b_out[:colour_rows]))
         out = {name: np.empty((head[1][0].shape[0], n), F32) for name, head in layers.items()}
-        for s in range(0, n, CHUNK):
-            cols = slice(s, min(s + CHUNK, n))
-            h = w_in @ self.round(pe[:, cols])
+
+        def chunk(cols: slice) -> None:
+            h = w_in @ self.encode(pos[:, cols])
             if first is not None:
                 h += first[:, cols] if columns is None else first[:, columns[cols]]
             _relu_(h)
@@ -303,7 +323,35 @@ class _Network:
                 y = out[name][:, cols]
                 np.matmul(w_out, x, out=y)
                 y += b_out
+
+        _map(chunk, _chunks(n, threads), threads)
         return {name: self.round(y) for name, y in out.items()}
+
+
+def _map(fn, items: list, threads: int) -> None:
+    """fn(item) for every item, on `threads` threads with one BLAS thread each; in this
+    thread alone, with BLAS threading each product, where BLAS cannot be held to one."""
+    with one_blas_thread() if threads > 1 else nullcontext(False) as held:
+        if held:
+            for _ in _pool(threads).map(fn, items):
+                pass  # (raises a worker's exception)
+        else:
+            for item in items:
+                fn(item)
+
+
+def _chunks(n: int, threads: int) -> list[slice]:
+    """`n` texels in equal chunks of at most CHUNK, as many as a multiple of `threads`, so
+    that every thread gets the same work (LOD 1's few thousand texels included)."""
+    count = threads * math.ceil(n / (CHUNK * threads))
+    size = math.ceil(n / max(count, 1))
+    return [slice(s, min(s + size, n)) for s in range(0, n, size)] if n else []
+
+
+@functools.cache
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """One pool per thread count, kept for the process (idle threads cost nothing)."""
+    return ThreadPoolExecutor(threads, thread_name_prefix="archhead-decode")
 
 
 def _relu_(x: np.ndarray) -> None:
