@@ -50,10 +50,11 @@ def scale_weight(weights: LossWeights, lod: float) -> float:
 
 
 class TrainingLoss:
-    """Eq. 6 for one render; `perceptual` is an ST-LPIPS module (or None to leave it out)."""
+    """Eq. 6 for one render; `perceptual` is an ST-LPIPS module (or None to leave it out),
+    which sees both images averaged over blocks of `downsample` x `downsample` pixels."""
 
-    def __init__(self, weights: LossWeights, perceptual=None):
-        self.weights, self.perceptual = weights, perceptual
+    def __init__(self, weights: LossWeights, perceptual=None, downsample: int = 1):
+        self.weights, self.perceptual, self.downsample = weights, perceptual, downsample
 
     def __call__(
         self,
@@ -82,10 +83,15 @@ class TrainingLoss:
             + scale_weight(w, lod) * terms["scale"]
         )
         if self.perceptual is not None and lpips_weight > 0:
-            terms["lpips"] = self.perceptual(_nchw(pred), _nchw(target))[0]
+            terms["lpips"] = self.perceptual(self._shrink(pred), self._shrink(target))[0]
             total = total + lpips_weight * terms["lpips"]
         terms["total"] = total
         return total, {k: float(v.detach()) for k, v in terms.items()}
+
+    def _shrink(self, image: torch.Tensor) -> torch.Tensor:
+        """(1,3,H,W) of an (H,W,3) image, block-averaged for the perceptual term."""
+        x = _nchw(image)
+        return F.avg_pool2d(x, self.downsample) if self.downsample > 1 else x
 
 
 def _nchw(image: torch.Tensor) -> torch.Tensor:
