@@ -158,34 +158,19 @@ class AvatarRuntime:
                 _code(eyes, EYES_DIM, "eyes"),
             ]
         )
-        raw = net.decode(
+        frame = _FrameOutputs(
+            cfg, pos, level["base_log_scale"], rot, rot_m, j0, shift, 3 * (degree + 1) ** 2
+        )
+        net.decode(
             pos,
             level.get("first"),
             net.frame_bias(drive_in, l),
-            colour_rows=3 * (degree + 1) ** 2,
+            frame.colour_rows,
+            frame.write,
             columns=columns,
             threads=self.threads,
         )
-
-        offsets = F32(cfg.offset_unit) * raw["offset"]
-        means = rot_m @ (pos + offsets - j0) + shift
-        q = raw["rotation"]
-        norm = np.sqrt(np.einsum("in,in->n", q, q))
-        q = np.where(norm > QUAT_EPS, q / np.maximum(norm, QUAT_EPS), F32([[1], [0], [0], [0]]))
-        log_scales = np.clip(
-            level["base_log_scale"] + raw["scale"], cfg.log_scale_min, cfg.log_scale_max
-        )
-        quats = quat_multiply(axis_angle_to_quaternion(rot).astype(F32), q.T)
-        return Gaussians(
-            means=_rows(means),
-            log_scales=_rows(log_scales),
-            quats=quats,
-            opacity_logits=raw["opacity"][0],
-            sh=_rows(raw["colour"]).reshape(pos.shape[1], -1, 3),
-            offsets=_rows(offsets),
-            uv_texel=level["texel"],
-            resolution=size,
-        )
+        return frame.gaussians(level["texel"], size)
 
     def _reach(self, lod: float, precision: str) -> np.ndarray:
         """How far each texel's Gaussian reaches from its surface point (culling.reach), from
@@ -293,19 +278,20 @@ class _Network:
         first,
         frame_bias: np.ndarray,
         colour_rows: int,
+        write,
         columns=None,
         threads: int = 1,
-    ) -> dict[str, np.ndarray]:
-        """Raw head outputs, (width, N) each, from the texels' positions (3, N); the colour
-        head's first `colour_rows` outputs only (its SH coefficients are coefficient-major).
-        `columns`: the texels of `first` that the positions are (culling), gathered chunk
-        by chunk rather than copied whole. `threads` decode chunks at once."""
-        n = pos.shape[1]
+    ) -> None:
+        """The heads' raw outputs from the texels' positions (3, N), chunk by chunk: each
+        chunk's, (width, n) per head, go to write(texel slice, outputs), on the thread that
+        decoded them. The colour head's first `colour_rows` outputs only (its SH
+        coefficients are coefficient-major). `columns`: the texels of `first` that the
+        positions are (culling), gathered chunk by chunk rather than copied whole.
+        `threads` decode chunks at once."""
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
         layers = dict(self.layers)
         hidden, (w_out, b_out) = layers["colour"]
         layers["colour"] = (hidden, (w_out[:colour_rows], b_out[:colour_rows]))
-        out = {name: np.empty((head[1][0].shape[0], n), F32) for name, head in layers.items()}
 
         def chunk(cols: slice) -> None:
             h = w_in @ self.encode(pos[:, cols])
@@ -313,6 +299,7 @@ class _Network:
                 h += first[:, cols] if columns is None else first[:, columns[cols]]
             _relu_(h)
             h = self.round(h)
+            raw = {}
             for name, (hidden, (w_out, b_out)) in layers.items():
                 x = h[self.slices[name]]
                 for w, b in hidden:
@@ -320,12 +307,63 @@ class _Network:
                     x += b
                     _relu_(x)
                     x = self.round(x)
-                y = out[name][:, cols]
-                np.matmul(w_out, x, out=y)
+                y = w_out @ x
                 y += b_out
+                raw[name] = self.round(y)
+            write(cols, raw)
 
-        _map(chunk, _chunks(n, threads), threads)
-        return {name: self.round(y) for name, y in out.items()}
+        _map(chunk, _chunks(pos.shape[1], threads), threads)
+
+
+class _FrameOutputs:
+    """A frame's Gaussians, texel-major as `Gaussians` holds them, written chunk by chunk
+    from the heads' raw, channel-major outputs: on the decoding threads, which share this
+    element-wise work too."""
+
+    def __init__(self, cfg, pos, base_log_scale, rot, rot_m, j0, shift, colour_rows: int):
+        n = pos.shape[1]
+        self.cfg, self.pos, self.base_log_scale = cfg, pos, base_log_scale
+        self.rot_m, self.j0, self.shift = rot_m, j0, shift
+        self.rot_q = axis_angle_to_quaternion(rot).astype(F32)
+        self.colour_rows = colour_rows
+        self.arrays = {
+            name: np.empty((n, width), F32)
+            for name, width in (
+                ("means", 3),
+                ("log_scales", 3),
+                ("quats", 4),
+                ("opacity_logits", 1),
+                ("sh", colour_rows),
+                ("offsets", 3),
+            )
+        }
+
+    def write(self, cols: slice, raw: dict[str, np.ndarray]) -> None:
+        cfg, out = self.cfg, self.arrays
+        offsets = F32(cfg.offset_unit) * raw["offset"]
+        out["offsets"][cols] = offsets.T
+        out["means"][cols] = (self.rot_m @ (self.pos[:, cols] + offsets - self.j0) + self.shift).T
+        q = raw["rotation"]
+        norm = np.sqrt(np.einsum("in,in->n", q, q))
+        q = np.where(norm > QUAT_EPS, q / np.maximum(norm, QUAT_EPS), F32([[1], [0], [0], [0]]))
+        out["quats"][cols] = quat_multiply(self.rot_q, q.T)
+        log_scales = self.base_log_scale[:, cols] + raw["scale"]
+        out["log_scales"][cols] = np.clip(log_scales, cfg.log_scale_min, cfg.log_scale_max).T
+        out["opacity_logits"][cols] = raw["opacity"].T
+        out["sh"][cols] = raw["colour"].T
+
+    def gaussians(self, texel: np.ndarray, size: int) -> Gaussians:
+        out = self.arrays
+        return Gaussians(
+            means=out["means"],
+            log_scales=out["log_scales"],
+            quats=out["quats"],
+            opacity_logits=out["opacity_logits"][:, 0],
+            sh=out["sh"].reshape(len(texel), -1, 3),
+            offsets=out["offsets"],
+            uv_texel=texel,
+            resolution=size,
+        )
 
 
 def _map(fn, items: list, threads: int) -> None:
@@ -360,11 +398,6 @@ def _relu_(x: np.ndarray) -> None:
     negative values; numpy's integer max runs ~1.5x faster than its NaN-aware float max."""
     bits = x.view(np.int32)
     np.maximum(bits, 0, out=bits)
-
-
-def _rows(x: np.ndarray) -> np.ndarray:
-    """(C, N) channel-major -> (N, C) contiguous."""
-    return np.ascontiguousarray(x.T)
 
 
 def _bake_identity(mesh: FlameModel, identity_shape: np.ndarray) -> FlameModel:
