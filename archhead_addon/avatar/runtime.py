@@ -6,7 +6,9 @@ texels' face corners and base log scale, and the feature field resampled to S, b
 pushed through the feature columns of the fused first layer, `W1_feature @ feature`
 (fused width, N). A frame then costs FLAME, the position map, the PE and the MLPs; the driving
 code and l are the same for every texel, so they enter the first layer as one bias column
-(multiplying a constant row appended to the PE).
+(multiplying a constant row appended to the PE). The texels go through the network in
+chunks, several at once on `threads` threads, each with one BLAS thread (`_Network`), and
+each chunk's Gaussians are finished on the thread that decoded it.
 
 fp16 path, storage only: weights, cached per-S terms, activations and raw outputs are held
 in half precision (as a half-precision GPU decoder holds them), every product and sum runs in
