@@ -98,12 +98,14 @@ _OPENBLAS_NAMES = [
 
 @functools.cache
 def _openblas_thread_functions():
-    """(get, set) of the thread count of the OpenBLAS loaded into this process, or None."""
+    """(get, set) of the thread count of the OpenBLAS loaded into this process, or None;
+    numpy's own (its wheels' copy, under numpy.libs) first where others are loaded too."""
     try:
         with open("/proc/self/maps") as maps:
-            paths = sorted({line.split()[-1] for line in maps if "openblas" in line.lower()})
+            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
     except OSError:
         return None
+    paths = sorted(paths, key=lambda path: ("numpy" not in path, path))
     for path in paths:
         try:
             lib = ctypes.CDLL(path)
