@@ -50,11 +50,10 @@ def scale_weight(weights: LossWeights, lod: float) -> float:
 
 
 class TrainingLoss:
-    """Eq. 6 for one render; `perceptual` is an ST-LPIPS module (or None to leave it out),
-    which sees both images averaged over blocks of `downsample` x `downsample` pixels."""
+    """Eq. 6 for one render; `perceptual` is an ST-LPIPS module (or None to leave it out)."""
 
-    def __init__(self, weights: LossWeights, perceptual=None, downsample: int = 1):
-        self.weights, self.perceptual, self.downsample = weights, perceptual, downsample
+    def __init__(self, weights: LossWeights, perceptual=None):
+        self.weights, self.perceptual = weights, perceptual
 
     def __call__(
         self,
@@ -64,10 +63,12 @@ class TrainingLoss:
         gaussians: Gaussians,
         lod: float,
         lpips_weight: float | None = None,
+        lpips_window: tuple[slice, slice] | None = None,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """(total, terms): pred and target (H,W,3) in [0, 1], parts (H,W). The terms are the
         unweighted values of each part, and the total, as floats for logging.
-        `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out)."""
+        `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out);
+        `lpips_window` (rows, columns) is the part of both images that ST-LPIPS sees."""
         w = self.weights
         lpips_weight = w.lpips if lpips_weight is None else lpips_weight
         terms = {
@@ -83,15 +84,11 @@ class TrainingLoss:
             + scale_weight(w, lod) * terms["scale"]
         )
         if self.perceptual is not None and lpips_weight > 0:
-            terms["lpips"] = self.perceptual(self._shrink(pred), self._shrink(target))[0]
+            window = lpips_window or (slice(None), slice(None))
+            terms["lpips"] = self.perceptual(_nchw(pred[window]), _nchw(target[window]))[0]
             total = total + lpips_weight * terms["lpips"]
         terms["total"] = total
         return total, {k: float(v.detach()) for k, v in terms.items()}
-
-    def _shrink(self, image: torch.Tensor) -> torch.Tensor:
-        """(1,3,H,W) of an (H,W,3) image, block-averaged for the perceptual term."""
-        x = _nchw(image)
-        return F.avg_pool2d(x, self.downsample) if self.downsample > 1 else x
 
 
 def _nchw(image: torch.Tensor) -> torch.Tensor:
