@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import tempfile
 from dataclasses import replace
@@ -89,8 +90,9 @@ def main(argv=None) -> None:
         f"{args.config}, avatar {args.avatar or 'untrained'}, {torch.get_num_threads()} "
         f"threads, {args.steps} steps per stage and variant\n"
     )
-    cycle = config.lpips_every * config.lods_per_step  # whole cycles of every schedule
-    steps = -(-args.steps // cycle) * cycle
+    configs = {name: profiler.trainer.config for name, profiler in profilers.items()}
+    cycle = math.lcm(*(c.lpips_every * c.lods_per_step for c in configs.values()))
+    steps = -(-args.steps // cycle) * cycle  # whole cycles of every schedule
     print("| stage | variant | ms per step | as configured / variant |\n|---|---|---:|---:|")
     for stage, first in ((1, 0), (2, config.stage1_steps)):
         times = {name: [] for name in variants}
@@ -99,13 +101,16 @@ def main(argv=None) -> None:
                 ms = profiler.step(first + max(i, 0))
                 if i >= 0:
                     times[name].append(ms)
-        uses = [
-            config.loss.lpips > 0 and (first + i) % config.lpips_every == 0 for i in range(steps)
-        ]
-        base = _expected(times["as configured"], uses)
-        for name, t in times.items():
-            ms = _expected(t, uses)
-            print(f"| {stage} | {name} | {ms:.1f} | {base / ms:.2f}x |")
+        expected = {
+            name: _expected(t, [_uses_lpips(configs[name], first + i) for i in range(steps)])
+            for name, t in times.items()
+        }
+        for name, ms in expected.items():
+            print(f"| {stage} | {name} | {ms:.1f} | {expected['as configured'] / ms:.2f}x |")
+
+
+def _uses_lpips(config, step: int) -> bool:
+    return config.loss.lpips > 0 and step % config.lpips_every == 0
 
 
 if __name__ == "__main__":
