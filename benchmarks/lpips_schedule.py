@@ -4,8 +4,8 @@
                                         [--avatar RUN/avatar.npz] [--steps 16] [--threads 2]
                                         [--variant NAME=JSON ...]
 
-Each variant is the config with some keys changed (default: ST-LPIPS on a 128-pixel square,
-`lpips_crop` 128; and that plus one stage-2 render per step, `lpips_levels` "one"). Every
+Each variant is the config with some keys changed (default: ST-LPIPS on one stage-2 render
+per step, `lpips_levels` "one"; and on every 8th step, `lpips_every` 8). Every
 variant times the same real `Trainer.train_step`s, stage 1 and then stage 2 from step
 `stage1_steps`, from the same avatar (each step's update undone: `training_profile.Profiler`),
 the variants in turn step by step, so that the machine's load falls on all of them alike.
@@ -29,8 +29,8 @@ from training_profile import DEFAULT_DATA, Profiler, _expected
 from archhead_addon.timing import restart_with_threads
 
 DEFAULT_VARIANTS = {
-    "ST-LPIPS on a 128 px square": {"lpips_crop": 128},
-    "128 px square, one stage-2 render": {"lpips_crop": 128, "lpips_levels": "one"},
+    "one stage-2 render": {"lpips_levels": "one"},
+    "every 8th step": {"lpips_every": 8},
 }
 
 

@@ -142,15 +142,6 @@ def test_perceptual_term_schedules_stay_unbiased(dataset, model, tmp_path):
     assert one.lpips_weights(0, 1) == [0.1]  # stage 1: the one render
     with pytest.raises(ValueError, match="lpips_levels"):
         TrainConfig.from_dict({"lpips_levels": "some"})
-    with pytest.raises(ValueError, match="lpips_crop"):
-        TrainConfig.from_dict({"lpips_crop": 16})
-    cropped = trainer(dataset, model, tmp_path, lpips_crop=32)
-    windows = [cropped.lpips_window(step, 48, 64) for step in range(20)]
-    assert all(r.stop - r.start == c.stop - c.start == 32 for r, c in windows)
-    assert all(r.stop <= 48 and c.stop <= 64 for r, c in windows)
-    assert len({(r.start, c.start) for r, c in windows}) > 10  # placed anew each step
-    assert windows[3] == cropped.lpips_window(3, 48, 64)  # a function of the step
-    assert every.lpips_window(0, 48, 64) is None
 
 
 def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):

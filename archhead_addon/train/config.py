@@ -37,7 +37,6 @@ WHOLE_NUMBERS = (
     "stage2_steps",
     "lods_per_step",
     "lpips_every",
-    "lpips_crop",
     "checkpoint_every",
     "seed",
     "threads",
@@ -74,9 +73,6 @@ class TrainConfig:
     # The perceptual term on every k-th step only, weighted k x λ_lpips there (an unbiased
     # estimate of the full term): ST-LPIPS costs more than the avatar on the CPU.
     lpips_every: int = 1
-    # ST-LPIPS on a square of this many pixels a side, at full resolution, placed at random
-    # each step (0: the whole image). Its mean over the square estimates the image's mean.
-    lpips_crop: int = 0
     # "one": in stage 2, the term on one of the step's renders, in turn over the steps and
     # weighted by their count (again unbiased), instead of on every one.
     lpips_levels: str = "all"
@@ -105,11 +101,6 @@ class TrainConfig:
         )
         for key in ("lods_per_step", "checkpoint_every", "lpips_every"):
             _require(getattr(self, key) >= 1, key, f"must be >= 1, got {getattr(self, key)}")
-        _require(
-            self.lpips_crop == 0 or self.lpips_crop >= 32,
-            "lpips_crop",
-            f"must be 0 (no crop) or >= 32 px (ST-LPIPS), got {self.lpips_crop}",
-        )
         _require(
             self.lpips_levels in LPIPS_LEVELS,
             "lpips_levels",

@@ -16,7 +16,6 @@ COUNTS = {
     "stage2_steps": (0, 10_000_000),
     "lods_per_step": (1, 64),
     "lpips_every": (1, 1_000_000),
-    "lpips_crop": (0, 8192),
     "checkpoint_every": (1, 10_000_000),
 }
 LR_MAX, LR_PLAUSIBLE = 10.0, 0.1  # Adam's rates; the paper's are 1e-3 to 5e-3

@@ -211,16 +211,6 @@ class Trainer:
         turn = (step // cfg.lpips_every) % renders
         return [weight * renders if k == turn else 0.0 for k in range(renders)]
 
-    def lpips_window(self, step: int, height: int, width: int) -> tuple[slice, slice] | None:
-        """The square of `lpips_crop` pixels a side that ST-LPIPS sees in this step, placed
-        by the step (resumed runs take the same); None, the whole image, without a crop."""
-        size = self.config.lpips_crop
-        if not size or size >= min(height, width):
-            return None
-        u = np.random.default_rng([self.config.seed, 2 << 20, step]).random(2)
-        top, left = (int(x * (n - size + 1)) for x, n in zip(u, (height, width), strict=True))
-        return slice(top, top + size), slice(left, left + size)
-
     def learning_rate_factor(self, step: int) -> float:
         """1 at the start of each stage, decaying exponentially to lr_final_ratio at its end."""
         cfg = self.config
@@ -262,10 +252,9 @@ class Trainer:
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
         sums: dict[str, float] = {}
-        window = self.lpips_window(step, *frame.image.shape[:2])
         for lod, lpips_weight in zip(lods, self.lpips_weights(step, len(lods)), strict=True):
             rgb, g = self.render(frame, lod)
-            total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight, window)
+            total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight)
             (total / len(lods)).backward()
             for k, v in terms.items():
                 sums[k] = sums.get(k, 0.0) + v / len(lods)

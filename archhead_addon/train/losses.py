@@ -63,12 +63,10 @@ class TrainingLoss:
         gaussians: Gaussians,
         lod: float,
         lpips_weight: float | None = None,
-        lpips_window: tuple[slice, slice] | None = None,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """(total, terms): pred and target (H,W,3) in [0, 1], parts (H,W). The terms are the
         unweighted values of each part, and the total, as floats for logging.
-        `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out);
-        `lpips_window` (rows, columns) is the part of both images that ST-LPIPS sees."""
+        `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out)."""
         w = self.weights
         lpips_weight = w.lpips if lpips_weight is None else lpips_weight
         terms = {
@@ -84,8 +82,7 @@ class TrainingLoss:
             + scale_weight(w, lod) * terms["scale"]
         )
         if self.perceptual is not None and lpips_weight > 0:
-            window = lpips_window or (slice(None), slice(None))
-            terms["lpips"] = self.perceptual(_nchw(pred[window]), _nchw(target[window]))[0]
+            terms["lpips"] = self.perceptual(_nchw(pred), _nchw(target))[0]
             total = total + lpips_weight * terms["lpips"]
         terms["total"] = total
         return total, {k: float(v.detach()) for k, v in terms.items()}
