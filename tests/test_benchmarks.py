@@ -85,3 +85,21 @@ def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_su
         ("2", "after"),
     ]
     assert re.search(r"stage 1: step [\d.]+x .* resample [\d.]+x", out)
+
+
+def test_lpips_schedule_times_every_variant_of_both_stages(repo_root, tiny_subject, tmp_path):
+    from training_subject import write_config
+
+    config = write_config(tmp_path / "tiny.json", stage1_steps=2, stage2_steps=2)
+    out = subprocess.run(
+        [sys.executable, "benchmarks/lpips_schedule.py", "--data", str(tiny_subject)]
+        + ["--config", str(config), "--steps", "1", "--threads", "1"],
+        cwd=repo_root,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    ).stdout
+    rows = [line.split("|")[1:3] for line in out.splitlines() if line.startswith(("| 1", "| 2"))]
+    assert [s.strip() for s, _ in rows] == ["1"] * 3 + ["2"] * 3
+    assert rows[0][1].strip() == "as configured"

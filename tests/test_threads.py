@@ -9,7 +9,13 @@ import pytest
 
 from archhead_addon.io.errors import InputError, InputWarning
 from archhead_addon.splat.kernel import RasterSettings
-from archhead_addon.threads import limit_thread_environment, machine_cores, thread_count
+from archhead_addon.threads import (
+    _openblas_thread_functions,
+    limit_thread_environment,
+    machine_cores,
+    one_blas_thread,
+    thread_count,
+)
 from archhead_addon.train.__main__ import main
 from archhead_addon.train.config import TrainConfig, config_data
 
@@ -46,6 +52,20 @@ def test_the_kernel_and_the_environment_are_held_to_the_cores(monkeypatch):
         "OPENBLAS_NUM_THREADS": "1",
         "MKL_NUM_THREADS": "x",
     }
+
+
+def test_numpys_openblas_is_held_to_one_thread_and_given_its_count_back():
+    functions = _openblas_thread_functions()
+    if functions is None:  # another BLAS: the block changes nothing and says so
+        with one_blas_thread() as held:
+            assert not held
+        return
+    get, _ = functions
+    before = get()
+    with one_blas_thread() as held:
+        assert held and get() == 1
+        assert float(np.ones((64, 64), np.float32) @ np.ones(64, np.float32) @ np.ones(64)) > 0
+    assert get() == before
 
 
 def test_training_config_counts(tmp_path):

@@ -129,6 +129,21 @@ def test_schedule_lods_frames_and_learning_rate(dataset, model, tmp_path):
     assert len({one.lods(s)[0] for s in range(10)}) == 10
 
 
+def test_perceptual_term_schedules_stay_unbiased(dataset, model, tmp_path):
+    """Every k-th step weighted k; with "one" level, one render of a stage-2 step in turn,
+    weighted by the step's count of renders: over any k * n steps each render's term has
+    the same total weight as on every render of every step."""
+    every = trainer(dataset, model, tmp_path, lpips_every=2, lods_per_step=3)
+    assert every.lpips_weights(0, 3) == [0.1] * 3 and every.lpips_weights(1, 3) == [0.0] * 3
+    one = trainer(dataset, model, tmp_path, lpips_every=2, lpips_levels="one")
+    weights = np.array([one.lpips_weights(step, 3) for step in range(6)])
+    np.testing.assert_allclose(weights[::2], 0.3 * np.eye(3))
+    assert not weights[1::2].any()
+    assert one.lpips_weights(0, 1) == [0.1]  # stage 1: the one render
+    with pytest.raises(ValueError, match="lpips_levels"):
+        TrainConfig.from_dict({"lpips_levels": "some"})
+
+
 def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
     changes = {"stage1_steps": 3, "stage2_steps": 3, "checkpoint_every": 100}
     straight = trainer(dataset, model, tmp_path / "a", **changes)

@@ -88,8 +88,13 @@ class Decoder(nn.Module):
             }
         )
 
-    def forward(self, x) -> dict[str, torch.Tensor]:
-        h = F.relu(self.first(x))
+    def forward(self, texel: torch.Tensor, frame: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Raw head outputs from the per-texel inputs (N, PE | feature) and the frame's,
+        (drive | l), which every texel shares: they enter the first layer as part of its
+        bias rather than as N copies of an input (the numpy runtime's form, too)."""
+        w, k = self.first.weight, texel.shape[1]
+        bias = torch.addmv(self.first.bias, w[:, k:], frame)
+        h = F.relu(F.linear(texel, w[:, :k], bias))
         return {name: head(h[:, self.slices[name]]) for name, head in self.heads.items()}
 
 
@@ -242,8 +247,8 @@ class ArchHeadAvatar(nn.Module):
         parts = [self.encode(pos)]
         if cfg.levels:
             parts.append(texel_features(self.features, lv["resample"], lv["texel"]))
-        parts += [self.drive(expr, jaw, eyes).expand(n, -1), pos.new_full((n, 1), l)]
-        raw = self.decoder(torch.cat(parts, dim=1))
+        frame = torch.cat([self.drive(expr, jaw, eyes), pos.new_full((1,), l)])
+        raw = self.decoder(torch.cat(parts, dim=1), frame)
 
         offsets = cfg.offset_unit * raw["offset"]
         rot = _code(rotation, 3, "rotation", like)

@@ -6,7 +6,9 @@ texels' face corners and base log scale, and the feature field resampled to S, b
 pushed through the feature columns of the fused first layer, `W1_feature @ feature`
 (fused width, N). A frame then costs FLAME, the position map, the PE and the MLPs; the driving
 code and l are the same for every texel, so they enter the first layer as one bias column
-(multiplying a constant row appended to the PE).
+(multiplying a constant row appended to the PE). The texels go through the network in
+chunks, several at once on `threads` threads, each with one BLAS thread (`_Network`), and
+each chunk's Gaussians are finished on the thread that decoded it.
 
 fp16 path, storage only: weights, cached per-S terms, activations and raw outputs are held
 in half precision (as a half-precision GPU decoder holds them), every product and sum runs in
@@ -19,12 +21,16 @@ a display up.
 from __future__ import annotations
 
 import functools
+import math
 import weakref
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 
 import numpy as np
 
 from ..flame.lbs import forward_full
 from ..rotations import axis_angle_to_matrix, axis_angle_to_quaternion
+from ..threads import one_blas_thread, thread_count
 from ..uv.raster import UVRaster, face_texel_scale
 from .bicubic import resize
 from .checkpoint_format import AvatarCheckpoint, checkpoint_mesh, read_checkpoint
@@ -36,15 +42,19 @@ from .lod import blend_weights, resolution_for_lod
 
 F32, F16 = np.float32, np.float16
 PRECISIONS = ("fp32", "fp16")
-CHUNK = 8192  # texels per pass through the decoder (its widest activations stay in cache)
+CHUNK = 8192  # most texels per pass through the decoder (its widest activations stay in cache)
 # Culling pays when it leaves out more than this share's complement: below, the gathers of
 # the kept texels cost about what decoding the others would.
 CULL_WORTH = 0.9
 
 
 class AvatarRuntime:
-    def __init__(self, ckpt: AvatarCheckpoint, flame=None, path=None, max_cached: int = 4):
+    def __init__(
+        self, ckpt: AvatarCheckpoint, flame=None, path=None, max_cached: int = 4, threads: int = 0
+    ):
+        """`threads`: how many threads decode chunks of texels at once (0: every core)."""
         self.config = cfg = ckpt.config
+        self.threads = thread_count(threads)
         self.mesh = checkpoint_mesh(ckpt, flame, path)
         self.head = bake_identity(self.mesh, ckpt.identity_shape, ckpt.identity_offset)
         self.raster = UVRaster(self.mesh.uv, self.mesh.uv_faces)
@@ -52,8 +62,6 @@ class AvatarRuntime:
             self.mesh.v_template, self.mesh.faces, self.mesh.uv, self.mesh.uv_faces
         )
         self.features = {s: ckpt.params[f"features.{s}"] for s in cfg.levels}
-        self.pe_centre = np.asarray(cfg.pe_centre, F32)
-        self.freqs = (2.0 ** np.arange(cfg.pe_freqs)).astype(F32)
         self._nets = {p: _Network(ckpt.params, cfg, half=p == "fp16") for p in PRECISIONS}
         # Through a weak reference: a cached bound method is a cycle (self -> cache -> self)
         # that only the cyclic collector frees, and a dropped runtime kept hundreds of MB
@@ -64,9 +72,9 @@ class AvatarRuntime:
         )
 
     @classmethod
-    def load(cls, path, flame=None, max_cached: int = 4) -> AvatarRuntime:
+    def load(cls, path, flame=None, max_cached: int = 4, threads: int = 0) -> AvatarRuntime:
         """`flame`: the FLAME model the avatar was trained on (FlameModel, file, None=built-in)."""
-        return cls(read_checkpoint(path), flame, path, max_cached)
+        return cls(read_checkpoint(path), flame, path, max_cached, threads)
 
     def resolution(self, lod: float) -> int:
         return resolution_for_lod(lod, self.config.s_max, self.config.s_min)[1]
@@ -152,33 +160,19 @@ class AvatarRuntime:
                 _code(eyes, EYES_DIM, "eyes"),
             ]
         )
-        raw = net.decode(
-            self._encode(pos),
+        frame = _FrameOutputs(
+            cfg, pos, level["base_log_scale"], rot, rot_m, j0, shift, 3 * (degree + 1) ** 2
+        )
+        net.decode(
+            pos,
             level.get("first"),
             net.frame_bias(drive_in, l),
-            colour_rows=3 * (degree + 1) ** 2,
+            frame.colour_rows,
+            frame.write,
             columns=columns,
+            threads=self.threads,
         )
-
-        offsets = F32(cfg.offset_unit) * raw["offset"]
-        means = rot_m @ (pos + offsets - j0) + shift
-        q = raw["rotation"]
-        norm = np.sqrt(np.einsum("in,in->n", q, q))
-        q = np.where(norm > QUAT_EPS, q / np.maximum(norm, QUAT_EPS), F32([[1], [0], [0], [0]]))
-        log_scales = np.clip(
-            level["base_log_scale"] + raw["scale"], cfg.log_scale_min, cfg.log_scale_max
-        )
-        quats = quat_multiply(axis_angle_to_quaternion(rot).astype(F32), q.T)
-        return Gaussians(
-            means=_rows(means),
-            log_scales=_rows(log_scales),
-            quats=quats,
-            opacity_logits=raw["opacity"][0],
-            sh=_rows(raw["colour"]).reshape(pos.shape[1], -1, 3),
-            offsets=_rows(offsets),
-            uv_texel=level["texel"],
-            resolution=size,
-        )
+        return frame.gaussians(level["texel"], size)
 
     def _reach(self, lod: float, precision: str) -> np.ndarray:
         """How far each texel's Gaussian reaches from its surface point (culling.reach), from
@@ -186,19 +180,6 @@ class AvatarRuntime:
         real subject lies up to 10 cm off the head), which expressions move little."""
         g = self.decode(lod, precision=precision)
         return reach(g.offsets, g.log_scales)
-
-    def _encode(self, pos: np.ndarray) -> np.ndarray:
-        """(pe_dim + 1, N) float32 from positions (3, N): p, sin(2^k p), cos(2^k p) (k-major,
-        then x, y, z), and a row of ones that carries the first layer's per-frame bias."""
-        n, k = pos.shape[1], 3 * len(self.freqs)
-        out = np.empty((3 + 2 * k + 1, n), F32)
-        p = out[:3]
-        np.subtract(pos, self.pe_centre[:, None], out=p)
-        a = (self.freqs[:, None, None] * p[None]).reshape(-1, n)
-        np.sin(a, out=out[3 : 3 + k])
-        np.cos(a, out=out[3 + k : 3 + 2 * k])
-        out[-1] = 1.0
-        return out
 
     def precision_error(self, lod: float = 0.0, **codes) -> dict[str, float]:
         """Largest absolute difference of every attribute, fp16 path against fp32."""
@@ -213,8 +194,11 @@ class _Network:
 
     Activations are channel-major (channels, texels), the shape in which BLAS runs these
     long, thin products fastest here, and go through the decoder in chunks of texels so
-    the first layer's wide activations stay in cache. With half=True the weights and every
-    stored intermediate are rounded to float16 (`round`) while products accumulate in float32.
+    the first layer's wide activations stay in cache. The chunks are independent, and numpy
+    releases the GIL in its products and element-wise passes, so threads decode several at
+    once: the element-wise work, a third of a decode, runs on every core too, which BLAS's
+    own threads never did. With half=True the weights and every stored intermediate are
+    rounded to float16 (`round`) while products accumulate in float32.
     """
 
     def __init__(self, params: dict[str, np.ndarray], cfg, half: bool):
@@ -226,6 +210,8 @@ class _Network:
         def b(name):
             return self.round(params[name].astype(F32))[:, None]
 
+        self.pe_centre = np.asarray(cfg.pe_centre, F32)[:, None]
+        self.freqs = (2.0 ** np.arange(cfg.pe_freqs)).astype(F32)[:, None, None]
         self.mapping = [
             (w("mapping.0.weight"), b("mapping.0.bias")[:, 0]),
             (w("mapping.2.weight"), b("mapping.2.bias")[:, 0]),
@@ -273,26 +259,49 @@ class _Network:
         drive = self.round(np.tanh(w1 @ self.round(hidden) + b1))
         return self.round(self.w_drive @ drive + F32(lod) * self.w_lod + self.b_first)
 
+    def encode(self, pos: np.ndarray) -> np.ndarray:
+        """(pe_dim + 1, n) float32 from positions (3, n): p, sin(2^k p), cos(2^k p) (k-major,
+        then x, y, z), and a row of ones that carries the first layer's per-frame bias."""
+        n, k = pos.shape[1], 3 * len(self.freqs)
+        out = np.empty((3 + 2 * k + 1, n), F32)
+        p = out[:3]
+        np.subtract(pos, self.pe_centre, out=p)
+        # The angles in an array of their own: a ufunc whose input and output are views of
+        # one array takes numpy's overlap-safe path, 10x slower for sin and cos.
+        angles = (self.freqs * p[None]).reshape(-1, n)
+        np.sin(angles, out=out[3 : 3 + k])
+        np.cos(angles, out=out[3 + k : 3 + 2 * k])
+        out[-1] = 1.0
+        return self.round(out)
+
     def decode(
-        self, pe: np.ndarray, first, frame_bias: np.ndarray, colour_rows: int, columns=None
-    ) -> dict[str, np.ndarray]:
-        """Raw head outputs, (width, N) each, from the PE (pe_dim + 1, N); the colour head's
-        first `colour_rows` outputs only (its SH coefficients are coefficient-major).
-        `columns`: the texels of `first` that the PE's columns are (culling), gathered chunk
-        by chunk rather than copied whole."""
-        n = pe.shape[1]
+        self,
+        pos: np.ndarray,
+        first,
+        frame_bias: np.ndarray,
+        colour_rows: int,
+        write,
+        columns=None,
+        threads: int = 1,
+    ) -> None:
+        """The heads' raw outputs from the texels' positions (3, N), chunk by chunk: each
+        chunk's, (width, n) per head, go to write(texel slice, outputs), on the thread that
+        decoded them. The colour head's first `colour_rows` outputs only (its SH
+        coefficients are coefficient-major). `columns`: the texels of `first` that the
+        positions are (culling), gathered chunk by chunk rather than copied whole.
+        `threads` decode chunks at once."""
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
         layers = dict(self.layers)
         hidden, (w_out, b_out) = layers["colour"]
         layers["colour"] = (hidden, (w_out[:colour_rows], b_out[:colour_rows]))
-        out = {name: np.empty((head[1][0].shape[0], n), F32) for name, head in layers.items()}
-        for s in range(0, n, CHUNK):
-            cols = slice(s, min(s + CHUNK, n))
-            h = w_in @ self.round(pe[:, cols])
+
+        def chunk(cols: slice) -> None:
+            h = w_in @ self.encode(pos[:, cols])
             if first is not None:
                 h += first[:, cols] if columns is None else first[:, columns[cols]]
             _relu_(h)
             h = self.round(h)
+            raw = {}
             for name, (hidden, (w_out, b_out)) in layers.items():
                 x = h[self.slices[name]]
                 for w, b in hidden:
@@ -300,23 +309,110 @@ class _Network:
                     x += b
                     _relu_(x)
                     x = self.round(x)
-                y = out[name][:, cols]
-                np.matmul(w_out, x, out=y)
+                y = out_product(w_out, x)
                 y += b_out
-        return {name: self.round(y) for name, y in out.items()}
+                raw[name] = self.round(y)
+            write(cols, raw)
+
+        # On `threads` threads with one BLAS thread each; in this thread alone, with BLAS
+        # threading each product, where BLAS cannot be held to one.
+        with one_blas_thread() if threads > 1 else nullcontext(False) as held:
+            out_product = _row_by_row if held else np.matmul
+            if held:
+                for _ in _pool(threads).map(chunk, _chunks(pos.shape[1], threads)):
+                    pass  # (raises a worker's exception)
+            else:
+                for cols in _chunks(pos.shape[1], 1):
+                    chunk(cols)
+
+
+class _FrameOutputs:
+    """A frame's Gaussians, texel-major as `Gaussians` holds them, written chunk by chunk
+    from the heads' raw, channel-major outputs: on the decoding threads, which share this
+    element-wise work too."""
+
+    def __init__(self, cfg, pos, base_log_scale, rot, rot_m, j0, shift, colour_rows: int):
+        n = pos.shape[1]
+        self.cfg, self.pos, self.base_log_scale = cfg, pos, base_log_scale
+        self.rot_m, self.j0, self.shift = rot_m, j0, shift
+        self.rot_q = axis_angle_to_quaternion(rot).astype(F32)
+        self.colour_rows = colour_rows
+        self.arrays = {
+            name: np.empty((n, width), F32)
+            for name, width in (
+                ("means", 3),
+                ("log_scales", 3),
+                ("quats", 4),
+                ("opacity_logits", 1),
+                ("sh", colour_rows),
+                ("offsets", 3),
+            )
+        }
+
+    def write(self, cols: slice, raw: dict[str, np.ndarray]) -> None:
+        cfg, out = self.cfg, self.arrays
+        offsets = F32(cfg.offset_unit) * raw["offset"]
+        out["offsets"][cols] = offsets.T
+        out["means"][cols] = (self.rot_m @ (self.pos[:, cols] + offsets - self.j0) + self.shift).T
+        q = raw["rotation"]
+        norm = np.sqrt(np.einsum("in,in->n", q, q))
+        q = np.where(norm > QUAT_EPS, q / np.maximum(norm, QUAT_EPS), F32([[1], [0], [0], [0]]))
+        out["quats"][cols] = quat_multiply(self.rot_q, q.T)
+        log_scales = self.base_log_scale[:, cols] + raw["scale"]
+        out["log_scales"][cols] = np.clip(log_scales, cfg.log_scale_min, cfg.log_scale_max).T
+        out["opacity_logits"][cols] = raw["opacity"].T
+        out["sh"][cols] = raw["colour"].T
+
+    def gaussians(self, texel: np.ndarray, size: int) -> Gaussians:
+        out = self.arrays
+        return Gaussians(
+            means=out["means"],
+            log_scales=out["log_scales"],
+            quats=out["quats"],
+            opacity_logits=out["opacity_logits"][:, 0],
+            sh=out["sh"].reshape(len(texel), -1, 3),
+            offsets=out["offsets"],
+            uv_texel=texel,
+            resolution=size,
+        )
+
+
+def _row_by_row(w: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """w @ x, one matrix-vector product per row of w: 2-3x faster than OpenBLAS's matrix
+    product for the heads' outputs (1-4 rows) on one BLAS thread; with several, far slower."""
+    y = np.empty((len(w), x.shape[1]), F32)
+    for i, row in enumerate(w):
+        np.matmul(row, x, out=y[i])
+    return y
+
+
+def _chunks(n: int, threads: int) -> list[slice]:
+    """`n` texels in equal chunks of at most CHUNK, as many as a multiple of `threads`, so
+    that every thread gets the same work (LOD 1's few thousand texels included)."""
+    count = threads * math.ceil(n / (CHUNK * threads))
+    size = math.ceil(n / max(count, 1))
+    return [slice(s, min(s + size, n)) for s in range(0, n, size)] if n else []
+
+
+@functools.cache
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """One pool per thread count, kept for the process (idle threads cost nothing)."""
+    return ThreadPoolExecutor(threads, thread_name_prefix="archhead-decode")
 
 
 def _relu_(x: np.ndarray) -> None:
-    """In-place ReLU of a contiguous float32 array, as an integer max on its int32 view: a
-    float with the sign bit set is a negative int32, so max(bits, 0) zeroes exactly the
-    negative values; numpy's integer max runs ~1.5x faster than its NaN-aware float max."""
-    bits = x.view(np.int32)
-    np.maximum(bits, 0, out=bits)
+    """In-place ReLU of a contiguous float32 array, as its maximum with an array of zeros:
+    numpy vectorises that loop, and not the one with the scalar 0 (4x slower here, and
+    still 3x as the integer max on the float's bits that this replaced)."""
+    np.maximum(x, _zeros(x.size).reshape(x.shape), out=x)
 
 
-def _rows(x: np.ndarray) -> np.ndarray:
-    """(C, N) channel-major -> (N, C) contiguous."""
-    return np.ascontiguousarray(x.T)
+@functools.lru_cache(maxsize=16)
+def _zeros(size: int) -> np.ndarray:
+    """Read-only zeros, one array per size (a decode's chunks and layers take a few)."""
+    zeros = np.zeros(size, F32)
+    zeros.flags.writeable = False
+    return zeros
 
 
 def _code(value, width: int, name: str, pad: bool = False) -> np.ndarray:

@@ -24,6 +24,7 @@ from ..threads import thread_count
 from .config_ranges import check_ranges
 
 HOLDOUTS = ("last", "interleaved")  # which frames test (dataset.split_indices)
+LPIPS_LEVELS = ("all", "one")  # which of a stage-2 step's renders the perceptual term sees
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 PRESETS = ("cpu", "cpu_short", "gpu_paper", "demo")
@@ -72,6 +73,9 @@ class TrainConfig:
     # The perceptual term on every k-th step only, weighted k x λ_lpips there (an unbiased
     # estimate of the full term): ST-LPIPS costs more than the avatar on the CPU.
     lpips_every: int = 1
+    # "one": in stage 2, the term on one of the step's renders, in turn over the steps and
+    # weighted by their count (again unbiased), instead of on every one.
+    lpips_levels: str = "all"
     avatar: dict = field(default_factory=dict)  # AvatarConfig fields
     checkpoint_every: int = 100  # steps
     seed: int = 0
@@ -97,6 +101,11 @@ class TrainConfig:
         )
         for key in ("lods_per_step", "checkpoint_every", "lpips_every"):
             _require(getattr(self, key) >= 1, key, f"must be >= 1, got {getattr(self, key)}")
+        _require(
+            self.lpips_levels in LPIPS_LEVELS,
+            "lpips_levels",
+            f"must be one of {LPIPS_LEVELS}, got {self.lpips_levels!r}",
+        )
         for group in ("lr", "loss"):
             for f in fields(getattr(self, group)):
                 value = getattr(getattr(self, group), f.name)

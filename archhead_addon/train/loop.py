@@ -212,6 +212,19 @@ class Trainer:
         n = self.config.lods_per_step
         return stage2_lods(n, np.random.default_rng([self.config.seed, 1 << 20, step]).random(n))
 
+    def lpips_weights(self, step: int, renders: int) -> list[float]:
+        """λ_lpips for each render of a step: on every `lpips_every`-th step, weighted by that
+        count; with `lpips_levels` "one", on one render of it, in turn, weighted by their
+        count too (the step's loss is their mean), so that the term stays unbiased."""
+        cfg = self.config
+        if step % cfg.lpips_every:
+            return [0.0] * renders
+        weight = cfg.loss.lpips * cfg.lpips_every
+        if cfg.lpips_levels == "all":
+            return [weight] * renders
+        turn = (step // cfg.lpips_every) % renders
+        return [weight * renders if k == turn else 0.0 for k in range(renders)]
+
     def learning_rate_factor(self, step: int) -> float:
         """1 at the start of each stage, decaying exponentially to lr_final_ratio at its end."""
         cfg = self.config
@@ -253,9 +266,7 @@ class Trainer:
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
         sums: dict[str, float] = {}
-        every = cfg.lpips_every
-        lpips_weight = cfg.loss.lpips * every if step % every == 0 else 0.0
-        for lod in lods:
+        for lod, lpips_weight in zip(lods, self.lpips_weights(step, len(lods)), strict=True):
             rgb, g = self.render(frame, lod)
             total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight)
             (total / len(lods)).backward()
