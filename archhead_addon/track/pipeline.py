@@ -188,7 +188,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
                 numbers[kept],
                 source.fps,
                 size,
-                FitOptions(focal=fit.focal),
+                FitOptions(focal=fit.focal),  # the focal length as the landmarks left it
                 init=fit.codes,
                 static_offset=opt.static_offset,
             )
@@ -200,8 +200,8 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
                 opt.photometric,
                 progress=lambda d, t, e: say(event="step", stage="refine", step=d, total=t),
             )
-            fit = clip.result(fit.seconds + watch.seconds)
             times["refine"] = watch.seconds
+            fit = clip.result(fit.seconds + watch.seconds)
         K = crop_intrinsics(fit.K, (x0, y0, side), opt.size)
         seq = fitted_sequence(
             fit.codes,
