@@ -19,14 +19,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from training_profile import DEFAULT_DATA, Profiler, _expected
-
-from archhead_addon.timing import restart_with_threads
+from training_profile import DEFAULT_DATA, Profiler, _expected, make_trainer, training_setup
 
 DEFAULT_VARIANTS = {
     "one stage-2 render": {"lpips_levels": "one"},
@@ -53,38 +50,16 @@ def main(argv=None) -> None:
         help='NAME={"key": value, ...}: config changes to time (repeatable)',
     )
     args = p.parse_args(argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the training command sets it
-    restart_with_threads(args.threads)
+    config, dataset, frames = training_setup(args)
 
     import torch
 
-    from archhead_addon.avatar.checkpoint import load_avatar
-    from archhead_addon.flame.model import load_model
-    from archhead_addon.train import loop
-    from archhead_addon.train.config import TrainConfig
-    from archhead_addon.train.dataset import FrameDataset
-
-    torch.set_num_threads(args.threads)
-    config = TrainConfig.load(args.config)
-    model = load_model()
-    dataset = FrameDataset(
-        args.data, config.resolution, model, split="train", holdout=config.holdout
-    )
-    cpu = torch.device("cpu")
-    frames = loop.frames_on_device(dataset, cpu)
     variants = {"as configured": {}, **dict(args.variant or DEFAULT_VARIANTS)}
     profilers = {}
     with tempfile.TemporaryDirectory() as tmp:  # nothing is saved: the steps are called alone
         for name, changes in variants.items():
             cfg = replace(config, **changes)
-            if args.avatar is None:
-                trainer = loop.Trainer.create(
-                    cfg, frames, model, dataset.sequence.shape[0], tmp, dataset.background, cpu
-                )
-            else:
-                avatar = load_avatar(args.avatar, model)
-                trainer = loop.Trainer(cfg, frames, avatar, tmp, dataset.background, cpu)
-            profilers[name] = Profiler(trainer)
+            profilers[name] = Profiler(make_trainer(cfg, dataset, frames, args.avatar, tmp))
     print(
         f"# Perceptual-term schedules: {args.data} ({len(frames)} training frames), config "
         f"{args.config}, avatar {args.avatar or 'untrained'}, {torch.get_num_threads()} "

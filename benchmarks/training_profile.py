@@ -176,6 +176,50 @@ def _render(trainer, leaves, frame, w, h):
     ).rgb
 
 
+def training_setup(args):
+    """(config, dataset, frames in memory) of `args.config` on `args.data`, with
+    `args.threads` threads (the process restarts itself with the thread variables set)."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the training command sets it
+    restart_with_threads(args.threads)
+
+    import torch
+
+    from archhead_addon.flame.model import load_model
+    from archhead_addon.train import loop
+    from archhead_addon.train.config import TrainConfig
+    from archhead_addon.train.dataset import FrameDataset
+
+    torch.set_num_threads(args.threads)
+    config = TrainConfig.load(args.config)
+    dataset = FrameDataset(
+        args.data, config.resolution, load_model(), split="train", holdout=config.holdout
+    )
+    return config, dataset, loop.frames_on_device(dataset, torch.device("cpu"))
+
+
+def make_trainer(config, dataset, frames, avatar_path, out_dir):
+    """A CPU trainer of `config` from the avatar at `avatar_path`, or an untrained one."""
+    import torch
+
+    from archhead_addon.avatar.checkpoint import load_avatar
+    from archhead_addon.train import loop
+
+    cpu, model = torch.device("cpu"), dataset.model
+    if avatar_path is None:
+        return loop.Trainer.create(
+            config,
+            frames,
+            model,
+            dataset.sequence.shape[0],
+            out_dir,
+            dataset.background,
+            cpu,
+            identity_offset=dataset.sequence.static_offset,
+        )
+    avatar = load_avatar(avatar_path, model)
+    return loop.Trainer(config, frames, avatar, out_dir, dataset.background, cpu)
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", type=Path, default=DEFAULT_DATA, help="subject folder")
@@ -189,33 +233,12 @@ def main(argv=None) -> None:
     p.add_argument("--steps", type=int, default=8, help="steps per stage and variant")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the training command sets it
-    restart_with_threads(args.threads)
+    config, dataset, frames = training_setup(args)
 
     import torch
 
-    from archhead_addon.avatar.checkpoint import load_avatar
-    from archhead_addon.flame.model import load_model
-    from archhead_addon.train import loop
-    from archhead_addon.train.config import TrainConfig
-    from archhead_addon.train.dataset import FrameDataset
-
-    torch.set_num_threads(args.threads)
-    config = TrainConfig.load(args.config)
-    model = load_model()
-    dataset = FrameDataset(
-        args.data, config.resolution, model, split="train", holdout=config.holdout
-    )
-    cpu = torch.device("cpu")
-    frames = loop.frames_on_device(dataset, cpu)
     with tempfile.TemporaryDirectory() as tmp:  # nothing is saved: the steps are called alone
-        if args.avatar is None:
-            trainer = loop.Trainer.create(
-                config, frames, model, dataset.sequence.shape[0], tmp, dataset.background, cpu
-            )
-        else:
-            avatar = load_avatar(args.avatar, model)
-            trainer = loop.Trainer(config, frames, avatar, tmp, dataset.background, cpu)
+        trainer = make_trainer(config, dataset, frames, args.avatar, tmp)
     module = avatar_module()
     variants = {"before": interpolated_texel_features, "after": module.texel_features}
     profiler = Profiler(trainer)

@@ -13,6 +13,19 @@ SCRIPT = re.compile(r"python (?:-m )?((?:benchmarks|scripts)/[\w/]+\.py)")
 MODULE = re.compile(r"python -m\s+([\w.]+)")
 
 
+def _benchmark(repo_root, script, *args, env=None) -> str:
+    """The standard output of `python benchmarks/<script> ARGS` run from the repository."""
+    return subprocess.run(
+        [sys.executable, f"benchmarks/{script}", *map(str, args)],
+        cwd=repo_root,
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    ).stdout
+
+
 def _documents(repo_root):
     return [repo_root / "README.md", *sorted((repo_root / "docs").glob("*.md"))]
 
@@ -38,14 +51,7 @@ def test_documented_commands_name_existing_files_and_modules(repo_root):
 
 @pytest.mark.parametrize("extra", [["--no-torch"]])
 def test_splat_kernel_benchmark_prints_its_table(repo_root, extra):
-    out = subprocess.run(
-        [sys.executable, "benchmarks/splat_kernel.py", "--quick", "--repeats", "1", *extra],
-        cwd=repo_root,
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    ).stdout
+    out = _benchmark(repo_root, "splat_kernel.py", "--quick", "--repeats", "1", *extra)
     rows = [line for line in out.splitlines() if line.startswith("| 3,000 | 256²")]
     assert len(rows) == 1 and "Times in ms" in out
 
@@ -53,11 +59,9 @@ def test_splat_kernel_benchmark_prints_its_table(repo_root, extra):
 def test_splat_versions_benchmark_prints_its_tables(repo_root):
     """Quick scene, no earlier revision; OpenSplat is skipped without a checkout."""
     env = {k: v for k, v in os.environ.items() if k != "ARCHHEAD_OPENSPLAT"}
-    out = subprocess.run(
-        [sys.executable, "benchmarks/splat_versions.py", "--quick", "--repeats", "1"]
-        + ["--before", "none"],
-        cwd=repo_root, check=True, capture_output=True, text=True, timeout=300, env=env,
-    ).stdout  # fmt: skip
+    out = _benchmark(
+        repo_root, "splat_versions.py", "--quick", "--repeats", 1, "--before", "none", env=env
+    )
     assert "OpenSplat: skipped" in out
     assert sum(line.startswith("| now, ") for line in out.splitlines()) >= 1
     assert "| used / limit |" in out
@@ -67,15 +71,10 @@ def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_su
     from training_subject import write_config
 
     config = write_config(tmp_path / "tiny.json", stage1_steps=2, stage2_steps=2)
-    out = subprocess.run(
-        [sys.executable, "benchmarks/training_profile.py", "--data", str(tiny_subject)]
-        + ["--config", str(config), "--steps", "1", "--threads", "1"],
-        cwd=repo_root,
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    ).stdout
+    out = _benchmark(
+        repo_root, "training_profile.py", "--data", tiny_subject, "--config", config,
+        "--steps", 1, "--threads", 1,
+    )  # fmt: skip
     rows = [line.split("|")[1:3] for line in out.splitlines() if line.startswith("| 1 |")]
     rows += [line.split("|")[1:3] for line in out.splitlines() if line.startswith("| 2 |")]
     assert [(s.strip(), v.strip()) for s, v in rows] == [
@@ -91,15 +90,10 @@ def test_lpips_schedule_times_every_variant_of_both_stages(repo_root, tiny_subje
     from training_subject import write_config
 
     config = write_config(tmp_path / "tiny.json", stage1_steps=2, stage2_steps=2)
-    out = subprocess.run(
-        [sys.executable, "benchmarks/lpips_schedule.py", "--data", str(tiny_subject)]
-        + ["--config", str(config), "--steps", "1", "--threads", "1"],
-        cwd=repo_root,
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    ).stdout
+    out = _benchmark(
+        repo_root, "lpips_schedule.py", "--data", tiny_subject, "--config", config,
+        "--steps", 1, "--threads", 1,
+    )  # fmt: skip
     rows = [line.split("|")[1:3] for line in out.splitlines() if line.startswith(("| 1", "| 2"))]
     assert [s.strip() for s, _ in rows] == ["1"] * 3 + ["2"] * 3
     assert rows[0][1].strip() == "as configured"

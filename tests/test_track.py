@@ -135,9 +135,9 @@ def test_photometric_refinement_tightens_the_landmark_fit(
     plain_report, plain, _ = _track_clip(synthetic_clip, tmp_path / "plain", photometric=None)
     assert plain_report["photometric"] is None
     image = report["photometric"]
-    assert image["frames"] == SYNTH_FRAMES and image["error_after"] < 0.8 * image["error_before"]
+    assert image["frames"] == SYNTH_FRAMES and image["error_after"] < 0.9 * image["error_before"]
     before, after = (np.percentile(vertex_errors(model, s, truth), 95) for s in (plain, refined))
-    assert after < before - 0.2, (before, after)  # mm; docs: 5.5 -> 4.5 on 40 frames at 256 px
+    assert after < before - 0.2, (before, after)  # mm; docs: 7.3 -> 5.7 on 120 frames at 256 px
 
 
 @pytest.mark.blender
