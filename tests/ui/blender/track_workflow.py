@@ -86,7 +86,15 @@ def track_to_the_end(ui):
 
     yield from ui.wait_until(progressed, 200, "the tracking to finish", poll=0.3)
     ui.data["stages"] = seen
-    check([s for s, _ in seen] == ["detect", "fit", "write", "refine"], f"stages shown: {seen}")
+    # in order, first to last (a loaded machine's window can miss a stage of a second)
+    stages = ["detect", "fit", "write", "refine"]
+    shown = [s for s, _ in seen]
+    check(
+        shown[0] == stages[0]
+        and shown[-1] == stages[-1]
+        and shown == sorted(shown, key=stages.index),
+        f"stages shown: {seen}",
+    )
     fractions = [f for _, f in seen]
     check(fractions == sorted(fractions), f"progress went back: {seen}")
     head = bpy.data.objects.get("clip")
