@@ -116,8 +116,9 @@ def crop_intrinsics(K: np.ndarray, crop, size: int) -> np.ndarray:
 class ClipFit:
     """A clip's unknowns (`p`, torch leaves) and the landmark energy over them.
 
-    `init`: codes to start from (FitResult.codes of these frames, and a focal length);
-    without it the pose starts from the landmarks' position and span.
+    `init`: codes to start from (FitResult.codes of these frames); without it the pose
+    starts from the landmarks' position and span. The focal length starts from
+    `options.focal` (then held) or its prior.
     """
 
     def __init__(
@@ -180,10 +181,7 @@ class ClipFit:
             "eyes": start("eyes", 6),
             "rotation": start("rotation", 3),
             "translation": start("translation", 3),
-            "log_focal": torch.tensor(
-                [np.log(init["focal"]) if "focal" in init else self.log_focal0],
-                dtype=torch.float32,
-            ),
+            "log_focal": torch.tensor([self.log_focal0], dtype=torch.float32),
         }
         if static_offset:
             p["static_offset"] = torch.zeros(self.model.n_verts, 3)
@@ -201,16 +199,16 @@ class ClipFit:
             return None
         return torch.cat([offset[torch.as_tensor(vertex_ids)], self.j_regressor @ offset])
 
-    def pose(self, layer, vertex_ids, frames=slice(None)):
-        """Posed vertices (B,n,3) of a `vertex_subset` layer over `vertex_ids`."""
+    def pose(self, layer, vertex_ids):
+        """Posed vertices (T,n,3) of a `vertex_subset` layer over `vertex_ids`."""
         p = self.p
         return layer(
             shape=p["shape"],
-            expr=p["expr"][frames],
-            jaw=p["jaw"][frames],
-            eyes=p["eyes"][frames],
-            rotation=p["rotation"][frames],
-            translation=p["translation"][frames],
+            expr=p["expr"],
+            jaw=p["jaw"],
+            eyes=p["eyes"],
+            rotation=p["rotation"],
+            translation=p["translation"],
             static_offset=self.subset_offset(vertex_ids),
         )[:, : len(vertex_ids)]
 
