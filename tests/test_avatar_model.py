@@ -158,3 +158,22 @@ def test_the_module_pickles_and_deep_copies_with_its_caches():
         torch.save(avatar, buffer)  # the per-resolution caches are plain data
         twin = copy.deepcopy(avatar)
         torch.testing.assert_close(twin(0.8, **codes).sh, before.sh, atol=0, rtol=0)
+
+
+def test_flame_carries_the_identity_and_follows_a_loaded_one():
+    """The avatar's FLAME has the identity in its template (no identity product per frame),
+    the same vertices as FLAME given the identity code; a state dict with another identity
+    bakes that one in."""
+    avatar = make_avatar()
+    head = avatar.mesh
+    codes = {"expr": np.linspace(-1, 1, head.n_expr), "jaw": [0.2, 0.0, 0.0]}
+    with torch.no_grad():
+        baked = avatar.flame(**codes)[0].numpy()
+    full = flame_forward(head, shape=avatar.identity_shape.numpy(), **codes)[0]
+    np.testing.assert_allclose(baked, full, atol=1e-6)
+
+    other = make_avatar(seed=5)
+    assert not torch.equal(other.identity_shape, avatar.identity_shape)
+    avatar.load_state_dict(other.state_dict())
+    with torch.no_grad():
+        torch.testing.assert_close(avatar.flame(**codes), other.flame(**codes))

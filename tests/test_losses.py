@@ -1,5 +1,6 @@
 """The paper's loss terms (eq. 6-7) on hand-made inputs, and ST-LPIPS against its package."""
 
+import copy
 import math
 
 import numpy as np
@@ -126,6 +127,30 @@ def test_st_lpips_matches_the_package_implementation(st_lpips):
     assert got == pytest.approx(expected, rel=1e-5)
     # tolerant of a one-pixel shift (b), not of a stripe pattern (c)
     assert got[0] < got[1] / 10
+
+
+def test_st_lpips_gradient_matches_the_library_convolution(st_lpips):
+    """The first convolution's row-by-row input gradient against torch's own backward; a
+    shared reference gives the distance that the pair does."""
+    a, b, _ = reference_images()
+    plain = copy.deepcopy(st_lpips)
+    wide = plain.trunk[0][0]
+    conv = torch.nn.Conv2d(3, 64, 11, padding=2).requires_grad_(False)
+    conv.load_state_dict(wide.state_dict())
+    plain.trunk[0]._modules["0"] = conv
+    grads = []
+    for module in (st_lpips, plain):
+        x = a.clone().requires_grad_(True)
+        module(x, b).sum().backward()
+        grads.append(x.grad)
+    assert grads[0].abs().max() > 0
+    torch.testing.assert_close(grads[0], grads[1], rtol=1e-4, atol=1e-7)
+
+    reference = st_lpips.reference(b)
+    assert not any(f.requires_grad for f in reference.features)
+    torch.testing.assert_close(st_lpips.compare(a, reference), st_lpips(a, b))
+    with pytest.raises(ValueError, match="two"):
+        st_lpips.compare(a[..., :-1], reference)
 
 
 def test_st_lpips_rejects_small_or_mismatched_images(st_lpips):

@@ -53,7 +53,7 @@ from ..uv.layout import avatar_mesh
 from ..uv.raster import UVRaster, face_texel_scale, position_map
 from .config import QUAT_EPS, AvatarConfig
 from .gaussians import SH_C0, Gaussians, quat_multiply
-from .identity import offset_mesh
+from .identity import bake_identity, offset_mesh
 from .lod import resolution_for_lod
 from .resample import resample_plan, texel_features
 
@@ -88,14 +88,22 @@ class Decoder(nn.Module):
             }
         )
 
-    def forward(self, texel: torch.Tensor, frame: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Raw head outputs from the per-texel inputs (N, PE | feature) and the frame's,
-        (drive | l), which every texel shares: they enter the first layer as part of its
-        bias rather than as N copies of an input (the numpy runtime's form, too)."""
-        w, k = self.first.weight, texel.shape[1]
-        bias = torch.addmv(self.first.bias, w[:, k:], frame)
-        h = F.relu(F.linear(texel, w[:, :k], bias))
-        return {name: head(h[:, self.slices[name]]) for name, head in self.heads.items()}
+    def forward(self, texel: list[torch.Tensor], frame: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Raw head outputs from the per-texel inputs, blocks of columns (N, PE), (N, feature),
+        and the frame's, (drive | l), which every texel shares: they enter the first layer as
+        part of its bias rather than as N copies of an input (the numpy runtime's form, too).
+        Each block has its own product, so autograd skips the input gradient of a block that
+        needs none (the PE: 75 of the 139 columns)."""
+        w, k = self.first.weight, 0
+        h = torch.addmv(self.first.bias, w[:, sum(x.shape[1] for x in texel) :], frame)
+        for block in texel:
+            h = F.linear(block, w[:, k : k + block.shape[1]], h)
+            k += block.shape[1]
+        # split, not slices: its backward is one concatenation rather than a zeroed copy of
+        # h per head
+        widths = [part.stop - part.start for part in self.slices.values()]
+        h = dict(zip(self.slices, F.relu(h).split(widths, dim=1), strict=True))
+        return {name: head(h[name]) for name, head in self.heads.items()}
 
 
 class ArchHeadAvatar(nn.Module):
@@ -113,12 +121,13 @@ class ArchHeadAvatar(nn.Module):
             raise ValueError("the avatar mesh needs a UV layout (see uv.layout.avatar_mesh)")
         self.config, self.mesh, self.base_model_id = config, mesh, base_model_id
         self.identity_offset = None if identity_offset is None else np.asarray(identity_offset)
-        self.flame = FlameLayer(offset_mesh(mesh, self.identity_offset))
         self.raster = UVRaster(mesh.uv, mesh.uv_faces)
         self.face_scale = face_texel_scale(mesh.v_template, mesh.faces, mesh.uv, mesh.uv_faces)
         self.register_buffer(
             "identity_shape", torch.as_tensor(np.asarray(identity_shape), dtype=torch.float32)
         )
+        self._bake_identity()
+        self.register_load_state_dict_post_hook(_bake_loaded_identity)
         self.register_buffer(
             "freqs", 2.0 ** torch.arange(config.pe_freqs, dtype=torch.float32), persistent=False
         )
@@ -137,6 +146,18 @@ class ArchHeadAvatar(nn.Module):
         self.decoder = Decoder(config)
         self._init_outputs()
         self._levels: OrderedDict = OrderedDict()  # plain data, so the module still pickles
+
+    def _bake_identity(self) -> None:
+        """FLAME with the identity in its template (identity.bake_identity), which saves the
+        identity product of every frame; built again when a state dict brings another one."""
+        shape = self.identity_shape.detach().cpu().numpy().copy()  # not a view of the buffer
+        baked = getattr(self, "_baked_shape", None)
+        if baked is not None and np.array_equal(baked, shape):
+            return
+        self.flame = FlameLayer(bake_identity(self.mesh, shape, self.identity_offset)).to(
+            self.identity_shape.device
+        )
+        self._baked_shape = shape
 
     @classmethod
     def create(
@@ -236,7 +257,6 @@ class ArchHeadAvatar(nn.Module):
         like = self.identity_shape
         expr_t = None if expr is None else _code(expr, self.mesh.n_expr, "expr", like, True)
         verts, joints, _ = self.flame.forward_full(
-            shape=self.identity_shape[None],
             expr=None if expr_t is None else expr_t[None],
             neck=_code(neck, 3, "neck", like)[None],
             jaw=_code(jaw, 3, "jaw", like)[None],
@@ -248,7 +268,7 @@ class ArchHeadAvatar(nn.Module):
         if cfg.levels:
             parts.append(texel_features(self.features, lv["resample"], lv["texel"]))
         frame = torch.cat([self.drive(expr, jaw, eyes), pos.new_full((1,), l)])
-        raw = self.decoder(torch.cat(parts, dim=1), frame)
+        raw = self.decoder(parts, frame)
 
         offsets = cfg.offset_unit * raw["offset"]
         rot = _code(rotation, 3, "rotation", like)
@@ -271,6 +291,10 @@ class ArchHeadAvatar(nn.Module):
             uv_texel=lv["texel"],
             resolution=size,
         )
+
+
+def _bake_loaded_identity(avatar: ArchHeadAvatar, _incompatible) -> None:
+    avatar._bake_identity()  # a module-level hook, so that the module still pickles
 
 
 def _code(value, width: int, name: str, like: torch.Tensor, pad: bool = False) -> torch.Tensor:

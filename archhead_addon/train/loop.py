@@ -266,9 +266,13 @@ class Trainer:
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
         sums: dict[str, float] = {}
-        for lod, lpips_weight in zip(lods, self.lpips_weights(step, len(lods)), strict=True):
+        lpips_weights = self.lpips_weights(step, len(lods))
+        reference = None
+        if self.loss.perceptual is not None and any(lpips_weights):
+            reference = self.loss.perceptual_reference(frame.image)
+        for lod, lpips_weight in zip(lods, lpips_weights, strict=True):
             rgb, g = self.render(frame, lod)
-            total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight)
+            total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight, reference)
             (total / len(lods)).backward()
             for k, v in terms.items():
                 sums[k] = sums.get(k, 0.0) + v / len(lods)

@@ -63,10 +63,12 @@ class TrainingLoss:
         gaussians: Gaussians,
         lod: float,
         lpips_weight: float | None = None,
+        reference=None,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """(total, terms): pred and target (H,W,3) in [0, 1], parts (H,W). The terms are the
         unweighted values of each part, and the total, as floats for logging.
-        `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out)."""
+        `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out);
+        `reference`, the target's `perceptual_reference`, saves computing it again."""
         w = self.weights
         lpips_weight = w.lpips if lpips_weight is None else lpips_weight
         terms = {
@@ -82,10 +84,17 @@ class TrainingLoss:
             + scale_weight(w, lod) * terms["scale"]
         )
         if self.perceptual is not None and lpips_weight > 0:
-            terms["lpips"] = self.perceptual(_nchw(pred), _nchw(target))[0]
+            if reference is None:
+                reference = self.perceptual_reference(target)
+            terms["lpips"] = self.perceptual.compare(_nchw(pred), reference)[0]
             total = total + lpips_weight * terms["lpips"]
         terms["total"] = total
         return total, {k: float(v.detach()) for k, v in terms.items()}
+
+    def perceptual_reference(self, target: torch.Tensor):
+        """The perceptual term's features of a target image (H,W,3), to share between the
+        renders of one step."""
+        return self.perceptual.reference(_nchw(target))
 
 
 def _nchw(image: torch.Tensor) -> torch.Tensor:

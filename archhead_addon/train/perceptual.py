@@ -18,6 +18,7 @@ network.
 from __future__ import annotations
 
 import importlib.resources
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -25,6 +26,13 @@ from torch import nn
 
 WEIGHTS = ("stlpips_pytorch", "weights/vST0.0/alex_shift_tolerant.pth")
 CHANNELS = (64, 192, 384, 256, 256)
+
+
+class Reference(NamedTuple):
+    """A reference image's features for `ShiftTolerantLPIPS.compare`."""
+
+    shape: tuple[int, ...]
+    features: list[torch.Tensor]
 
 
 class _BlurDown(nn.Module):
@@ -40,6 +48,42 @@ class _BlurDown(nn.Module):
         return F.conv2d(
             F.pad(x, (2, 2, 2, 2), mode="reflect"), self.filt, stride=2, groups=x.shape[1]
         )
+
+
+class _FrozenWideConv(nn.Conv2d):
+    """A stride-1 convolution with frozen weights and a wide kernel (the trunk's first,
+    11x11 from 3 channels), whose input gradient is computed row by row: the transposed
+    convolution's taps of each kernel column become output channels of one (kh, 1)
+    convolution, then shifted and summed. On a CPU that is 3x faster than the library's
+    backward, which runs at a fifth of the forward's rate with 3 output channels."""
+
+    def forward(self, x):
+        if self.weight.requires_grad or self.stride != (1, 1) or self.dilation != (1, 1):
+            return super().forward(x)
+        return _WideConvFunction.apply(x, self.weight, self.bias, self.padding)
+
+
+class _WideConvFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x, weight, bias, padding):
+        ctx.save_for_backward(weight)
+        ctx.padding, ctx.width = padding, x.shape[-1]
+        return F.conv2d(x, weight, bias, padding=padding)
+
+    @staticmethod
+    def backward(ctx, grad):
+        (weight,) = ctx.saved_tensors
+        (ph, pw), width = ctx.padding, ctx.width
+        out_c, in_c, kh, kw = weight.shape
+        # The transposed convolution's kernel, (in_c, out_c, kh, kw), its columns as channels.
+        flipped = weight.flip(2, 3).transpose(0, 1)
+        rows = flipped.permute(0, 3, 1, 2).reshape(in_c * kw, out_c, kh, 1)
+        u = F.conv2d(grad, rows.to(grad.dtype), padding=(kh - 1 - ph, 0))
+        u = F.pad(u.unflatten(1, (in_c, kw)), (kw - 1 - pw, kw - 1 - pw))
+        dx = u[:, :, 0, :, 0:width].clone()
+        for j in range(1, kw):
+            dx += u[:, :, j, :, j : j + width]
+        return dx, None, None, None
 
 
 def _slice(layers: dict[int, nn.Module]) -> nn.Sequential:
@@ -62,7 +106,7 @@ class ShiftTolerantLPIPS(nn.Module):
         relu, pool = nn.ReLU, nn.MaxPool2d
         self.trunk = nn.ModuleList(
             [
-                _slice({0: nn.Conv2d(3, 64, 11, padding=2), 1: _BlurDown(64), 2: relu()}),
+                _slice({0: _FrozenWideConv(3, 64, 11, padding=2), 1: _BlurDown(64), 2: relu()}),
                 _slice(
                     {
                         3: pool(3, stride=1),
@@ -109,16 +153,40 @@ class ShiftTolerantLPIPS(nn.Module):
             raise ValueError(
                 f"expected two (N,3,H,W) images, got {tuple(a.shape)} and {tuple(b.shape)}"
             )
-        if min(a.shape[2:]) < 32:
-            raise ValueError(f"ST-LPIPS needs images of at least 32x32 px, got {tuple(a.shape)}")
-        x = ((2 * a - 1) - self.shift) / self.scale
-        y = ((2 * b - 1) - self.shift) / self.scale
+        return self.compare(a, self.reference(b))
+
+    def reference(self, b: torch.Tensor) -> Reference:
+        """The unit-length features of images b (N,3,H,W), without a graph unless b needs one:
+        what `compare` measures against (a training step's renders share their frame's)."""
+        if b.ndim != 4 or b.shape[1] != 3:
+            raise ValueError(f"expected (N,3,H,W) images, got {tuple(b.shape)}")
+        if min(b.shape[2:]) < 32:
+            raise ValueError(f"ST-LPIPS needs images of at least 32x32 px, got {tuple(b.shape)}")
+        with torch.set_grad_enabled(torch.is_grad_enabled() and b.requires_grad):
+            return Reference(tuple(b.shape), self._features(b))
+
+    def compare(self, a: torch.Tensor, reference: Reference) -> torch.Tensor:
+        """Distances (N,) of images a (N,3,H,W) from a `reference` of images of their shape."""
+        if tuple(a.shape) != reference.shape:
+            raise ValueError(
+                f"expected two (N,3,H,W) images, got {tuple(a.shape)} and {reference.shape}"
+            )
         total = a.new_zeros(len(a))
-        for layer, lin in zip(self.trunk, self.lins, strict=True):
-            x, y = layer(x), layer(y)
-            diff = (_unit(x) - _unit(y)) ** 2
-            total = total + lin(diff).mean(dim=(1, 2, 3))
+        for x, y, lin in zip(self._features(a), reference.features, self.lins, strict=True):
+            total = total + lin((x - y) ** 2).mean(dim=(1, 2, 3))
         return total
+
+    def _features(self, images: torch.Tensor) -> list[torch.Tensor]:
+        # Channels-last: the library's CPU convolutions and max pooling run 1.5x faster so. A
+        # copy, since a permuted (H,W,3) image passes as channels-last yet is not taken so.
+        x = (((2 * images - 1) - self.shift) / self.scale).clone(
+            memory_format=torch.channels_last
+        )
+        feats = []
+        for layer in self.trunk:
+            x = layer(x)
+            feats.append(_unit(x))
+        return feats
 
 
 def _unit(feat: torch.Tensor, eps: float = 1e-10) -> torch.Tensor:
