@@ -67,6 +67,34 @@ def limit_thread_environment(environ=None) -> None:
             environ[name] = str(_too_many("environment", name, asked, cores))
 
 
+# How long an idle OpenMP thread spins for the next parallel region before it sleeps
+# (GNU OpenMP's iterations; a few microseconds). docs/training_profile.md has the figures.
+SPIN_COUNT = 2000
+QUIET_LOAD = 0.5  # runnable processes, the last minute's average, that still leave a core free
+
+
+def choose_openmp_waiting(environ=None) -> str:
+    """How torch's and the kernel's OpenMP threads wait between parallel regions: call before
+    torch loads, which reads it once. Returns what it chose, for the log. Sleeping at once
+    (OMP_WAIT_POLICY=PASSIVE) costs a wake-up per region, a fifth of a CPU training step on
+    quiet cores; spinning while other jobs want the cores made small operations 20-30x
+    slower. So: a short spin (GOMP_SPINCOUNT) when the cores are quiet, and PASSIVE when they
+    are not; left alone when either variable is set."""
+    environ = os.environ if environ is None else environ
+    if "OMP_WAIT_POLICY" in environ or "GOMP_SPINCOUNT" in environ:
+        return "OpenMP waiting as set in the environment"
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # Windows
+        load = math.inf
+    if load <= QUIET_LOAD:
+        environ["GOMP_SPINCOUNT"] = str(SPIN_COUNT)
+        return f"OpenMP threads spin briefly (quiet cores: load {load:.2f})"
+    environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    shown = "unknown" if math.isinf(load) else f"{load:.2f}"
+    return f"OpenMP threads sleep while they wait (other jobs on the cores: load {shown})"
+
+
 @contextmanager
 def one_blas_thread() -> Iterator[bool]:
     """Holds numpy's OpenBLAS to one thread until the block ends and yields True; yields

@@ -1,19 +1,27 @@
-"""Where a training step's time goes, before and after the matrix-product resample.
+"""Where a training step's time goes, as issue 19 found it and now.
 
     python benchmarks/training_profile.py [--data DIR] [--config cpu|FILE]
                                           [--avatar RUN/avatar.npz] [--steps 8] [--threads 2]
 
 Runs real steps of `train.loop.Trainer` (stage 1, then stage 2 from step `stage1_steps`) on
 a subject folder, each from the same avatar (the steps' updates are undone), alternating,
-step by step, the feature-field resample of this commit (`avatar.resample.texel_features`)
-with the one it replaced (F.interpolate per level, a channel-major blend, texels read by
-advanced indexing: `interpolated_texel_features` below). The split times each part alone,
-forward and backward, on the same frame and levels as the step: the resample; the rest of
-the avatar (FLAME, position map, PE, the heads: the "decoder"); the splat kernel; ST-LPIPS
-(on the steps that use it); Adam; and the data (the step's frame and levels; the frames are
-in memory from the start). "other" is what the step took beyond them (the losses, zeroing,
-autograd's own work) and goes negative when the machine's load moved between the
-measurements. Ratios are of medians over the same steps.
+step by step, this commit's step ("after") with the step before issue 19 ("before"), whose
+parts this file rebuilds:
+- the feature-field resample: F.interpolate per level, a channel-major blend, texels read
+  by advanced indexing (`interpolated_texel_features`), not `avatar.resample`'s products;
+- ST-LPIPS: channel-major, the first convolution's input gradient by the library
+  (`LibraryLPIPS`), and the target's features computed again for every render of a step;
+- the decoder's first layer on the concatenated texel inputs, the heads' inputs sliced
+  (`concatenated_decoder_forward`).
+(Not rebuilt: FLAME's identity product per frame, now baked into the template, 1-2 % of a
+render.) The split times each part alone, forward and backward, on the same frame and
+levels as the step: the resample; the rest of the avatar (FLAME, position map, PE, the
+heads: the "decoder"); the splat kernel; ST-LPIPS (on the steps that use it, once per render
+with its own reference); Adam; and the data (the step's frame and levels; the frames are in
+memory from the start). "other" is what the step took beyond them (the losses, zeroing,
+autograd's own work, and in "after" minus the references a step shares) and goes negative
+when the machine's load moved between the measurements. Ratios are of medians over the same
+steps.
 """
 
 from __future__ import annotations
@@ -21,17 +29,19 @@ from __future__ import annotations
 import argparse
 import contextlib
 import copy
-import os
 import statistics
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 from archhead_addon.avatar.lod import resolution_for_lod
+from archhead_addon.threads import choose_openmp_waiting
 from archhead_addon.timing import restart_with_threads
 
 DEFAULT_DATA = Path("out/synth_track")  # scripts/synthetic_subject.py --frames 120 --size 256
 PARTS = ("resample", "decoder", "kernel", "ST-LPIPS", "Adam", "data")
+RATIOS = ("resample", "decoder", "ST-LPIPS")  # the parts that issue 19 changed
 
 
 def interpolated_texel_features(features, plan, texel):
@@ -48,6 +58,59 @@ def interpolated_texel_features(features, plan, texel):
         )[0]
         out = out + weight * resized
     return out.reshape(out.shape[0], -1)[:, texel].T
+
+
+def concatenated_decoder_forward(decoder, texel, frame):
+    """`Decoder.forward` before issue 19: one product on the concatenated texel inputs (so
+    autograd computes the PE's input gradient too), the heads' inputs sliced from h."""
+    import torch
+    import torch.nn.functional as F
+
+    texel = torch.cat(texel, dim=1)
+    w, k = decoder.first.weight, texel.shape[1]
+    h = F.relu(F.linear(texel, w[:, :k], torch.addmv(decoder.first.bias, w[:, k:], frame)))
+    return {name: head(h[:, decoder.slices[name]]) for name, head in decoder.heads.items()}
+
+
+def library_lpips():
+    """ST-LPIPS before issue 19: channel-major, the library's backward for every layer."""
+    import torch
+
+    from archhead_addon.train import perceptual
+
+    class LibraryLPIPS(perceptual.ShiftTolerantLPIPS):
+        def __init__(self):
+            super().__init__()
+            wide = self.trunk[0][0]
+            conv = torch.nn.Conv2d(3, 64, 11, padding=2).requires_grad_(False)
+            conv.load_state_dict(wide.state_dict())
+            self.trunk[0]._modules["0"] = conv
+
+        def _features(self, images):
+            x = ((2 * images - 1) - self.shift) / self.scale
+            feats = []
+            for layer in self.trunk:
+                x = layer(x)
+                feats.append(perceptual._unit(x))
+            return feats
+
+    return LibraryLPIPS()
+
+
+@contextlib.contextmanager
+def before_issue_19(trainer, library):
+    """The trainer with the parts of the step before issue 19 (the module docstring)."""
+    module, loss, decoder = avatar_module(), trainer.loss, trainer.avatar.decoder
+    saved = module.texel_features, loss.perceptual
+    module.texel_features = interpolated_texel_features
+    loss.perceptual = library
+    loss.perceptual_reference = lambda target: None  # each render computes its own
+    decoder.forward = partial(concatenated_decoder_forward, decoder)
+    try:
+        yield
+    finally:
+        module.texel_features, loss.perceptual = saved
+        del loss.perceptual_reference, decoder.forward
 
 
 def _expected(values, uses_lpips) -> float:
@@ -179,7 +242,7 @@ def _render(trainer, leaves, frame, w, h):
 def training_setup(args):
     """(config, dataset, frames in memory) of `args.config` on `args.data`, with
     `args.threads` threads (the process restarts itself with the thread variables set)."""
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the training command sets it
+    choose_openmp_waiting()  # as the training command does, before torch loads
     restart_with_threads(args.threads)
 
     import torch
@@ -239,8 +302,11 @@ def main(argv=None) -> None:
 
     with tempfile.TemporaryDirectory() as tmp:  # nothing is saved: the steps are called alone
         trainer = make_trainer(config, dataset, frames, args.avatar, tmp)
-    module = avatar_module()
-    variants = {"before": interpolated_texel_features, "after": module.texel_features}
+    library = library_lpips() if trainer.loss.perceptual is not None else None
+    variants = {
+        "before": partial(before_issue_19, trainer, library),
+        "after": contextlib.nullcontext,
+    }
     profiler = Profiler(trainer)
     print(
         f"# Training-step profile: {args.data} ({len(frames)} training frames, "
@@ -255,25 +321,24 @@ def main(argv=None) -> None:
         times = {v: {k: [] for k in ("step", *PARTS)} for v in variants}
         for i in range(-1, steps):  # i = -1: an untimed warm-up of each variant
             step = first + max(i, 0)
-            for name, fn in variants.items():
-                module.texel_features = fn
-                step_ms = profiler.step(step)
-                parts = profiler.parts(step)
+            for name, variant in variants.items():
+                with variant():
+                    step_ms = profiler.step(step)
+                    parts = profiler.parts(step)
                 if i >= 0:
                     times[name]["step"].append(step_ms)
                     for k, v in parts.items():
                         times[name][k].append(v)
-        module.texel_features = variants["after"]
         uses = [config.loss.lpips > 0 and (first + i) % cycle == 0 for i in range(steps)]
         expected[stage] = {
             v: {k: _expected(x, uses) for k, x in t.items()} for v, t in times.items()
         }
-        paired[stage] = {
-            k: statistics.median(
-                b / a for b, a in zip(times["before"][k], times["after"][k], strict=True)
-            )
-            for k in ("step", "resample")
-        }
+        paired[stage] = {}
+        for k in ("step", *RATIOS):  # over the steps that have the part (ST-LPIPS: 1 in 4)
+            pairs = zip(times["before"][k], times["after"][k], strict=True)
+            ratios = [b / a for b, a in pairs if a > 0]
+            if ratios:
+                paired[stage][k] = statistics.median(ratios)
     print(
         f"Milliseconds per step, {steps} steps per stage: the medians of the steps with "
         f"ST-LPIPS ({steps // cycle}) and without, weighted as training takes them:\n"
@@ -291,10 +356,19 @@ def main(argv=None) -> None:
     )
     for stage, r in paired.items():
         b, a = expected[stage]["before"], expected[stage]["after"]
-        print(
-            f"- stage {stage}: step {r['step']:.2f}x ({b['step']:.0f} -> {a['step']:.0f} "
-            f"ms), resample {r['resample']:.2f}x ({b['resample']:.1f} -> {a['resample']:.1f} ms)"
+        cells = [
+            f"{k} {r[k]:.2f}x ({b[k]:.{0 if k == 'step' else 1}f} -> "
+            f"{a[k]:.{0 if k == 'step' else 1}f} ms)"
+            for k in ("step", *RATIOS)
+            if k in r
+        ]
+        print(f"- stage {stage}: " + ", ".join(cells))
+    weights = {1: config.stage1_steps, 2: config.stage2_steps}
+    for name in variants:
+        mean = sum(w * expected[s][name]["step"] for s, w in weights.items()) / sum(
+            weights.values()
         )
+        print(f"- {name}: {mean:.0f} ms per step over the config's stages")
 
 
 if __name__ == "__main__":

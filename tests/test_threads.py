@@ -11,6 +11,7 @@ from archhead_addon.io.errors import InputError, InputWarning
 from archhead_addon.splat.kernel import RasterSettings
 from archhead_addon.threads import (
     _openblas_thread_functions,
+    choose_openmp_waiting,
     limit_thread_environment,
     machine_cores,
     one_blas_thread,
@@ -103,3 +104,22 @@ def test_a_nan_step_count_exits_2_before_training(tmp_path, capsys):
         capsys.readouterr().err
     )
     assert not out.exists()
+
+
+def test_openmp_threads_spin_briefly_on_quiet_cores_and_sleep_on_busy_ones(monkeypatch):
+    import archhead_addon.threads as threads
+
+    monkeypatch.setattr(threads.os, "getloadavg", lambda: (0.2, 1.0, 1.0))
+    quiet = {}
+    assert "spin" in choose_openmp_waiting(quiet)
+    assert quiet == {"GOMP_SPINCOUNT": str(threads.SPIN_COUNT)}
+
+    monkeypatch.setattr(threads.os, "getloadavg", lambda: (3.0, 1.0, 1.0))
+    busy = {}
+    assert "sleep" in choose_openmp_waiting(busy)
+    assert busy == {"OMP_WAIT_POLICY": "PASSIVE"}
+
+    for chosen in ({"OMP_WAIT_POLICY": "ACTIVE"}, {"GOMP_SPINCOUNT": "0"}):
+        environ = dict(chosen)
+        assert "as set" in choose_openmp_waiting(environ)
+        assert environ == chosen  # the user's choice stands

@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
 from ..io.cli import run_command
 from ..io.errors import InputError
+from ..threads import choose_openmp_waiting
 from ..train.run_folder import RunFolder
 
 SHEET_ROWS, SHEET_LODS = 4, (0.0, 0.5, 1.0)  # EVAL/sheet.png: test frames by levels
@@ -174,7 +174,7 @@ def evaluate(args) -> int:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train/__main__.py
+    choose_openmp_waiting()  # before torch loads (threads.py)
     return run_command(lambda: evaluate(args))
 
 

@@ -8,15 +8,14 @@ the end. Ctrl-C (SIGINT) or SIGTERM finishes the current step, saves and exits w
 130; a second Ctrl-C stops at once. --resume first rewrites the files that a kill left behind
 the state. Exit status 0: trained, and the four files agree; 2: bad input; 1: they do not.
 
-torch loads only after the arguments are read, with OMP_WAIT_POLICY=PASSIVE unless set: on
-a busy machine OpenMP threads that spin while they wait for each other made small operations
-twenty times slower (docs/training.md).
+torch loads only after the arguments are read, and after `threads.choose_openmp_waiting` has
+chosen how its OpenMP threads wait: a short spin on quiet cores, sleeping at once on busy ones
+(docs/training.md).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import warnings
@@ -26,7 +25,7 @@ from typing import TYPE_CHECKING
 
 from ..io.atomic import remove_stale_temporaries
 from ..io.errors import InputError, InputWarning
-from ..threads import limit_thread_environment
+from ..threads import choose_openmp_waiting, limit_thread_environment
 from .config import DEFAULT_PRESET, HOLDOUTS, PRESETS, TrainConfig
 from .progress import DONE, ERROR, START, Progress
 from .progress import INTERRUPTED as INTERRUPTED_EVENT
@@ -190,8 +189,9 @@ def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads OpenMP
+    waiting = choose_openmp_waiting()  # before torch loads OpenMP
     progress = Progress(args.progress_json)
+    progress.message(waiting)
     stop = StopFlag()
     previous = stop.install()
     try:

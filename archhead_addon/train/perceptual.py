@@ -179,9 +179,7 @@ class ShiftTolerantLPIPS(nn.Module):
     def _features(self, images: torch.Tensor) -> list[torch.Tensor]:
         # Channels-last: the library's CPU convolutions and max pooling run 1.5x faster so. A
         # copy, since a permuted (H,W,3) image passes as channels-last yet is not taken so.
-        x = (((2 * images - 1) - self.shift) / self.scale).clone(
-            memory_format=torch.channels_last
-        )
+        x = (((2 * images - 1) - self.shift) / self.scale).clone(memory_format=torch.channels_last)
         feats = []
         for layer in self.trunk:
             x = layer(x)

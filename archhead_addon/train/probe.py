@@ -23,11 +23,12 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import os
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+
+from ..threads import choose_openmp_waiting
 
 TRAIN_STRIDE = 20  # every 20th training frame is measured (9 of 180)
 
@@ -218,7 +219,7 @@ def run(args, out=None) -> list[dict]:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads (train/__main__)
+    choose_openmp_waiting()  # before torch loads (threads.py)
     from ..io.errors import InputError
 
     try:
