@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import copy
+import os
 import statistics
 import tempfile
 import time
@@ -111,6 +112,14 @@ def before_issue_19(trainer, library):
     finally:
         module.texel_features, loss.perceptual = saved
         del loss.perceptual_reference, decoder.forward
+
+
+def _waiting() -> str:
+    """How OpenMP threads wait in this process (threads.choose_openmp_waiting's choice)."""
+    chosen = [
+        f"{k}={os.environ[k]}" for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT") if k in os.environ
+    ]
+    return ", ".join(chosen) or "OpenMP's default"
 
 
 def _expected(values, uses_lpips) -> float:
@@ -312,7 +321,8 @@ def main(argv=None) -> None:
         f"# Training-step profile: {args.data} ({len(frames)} training frames, "
         f"{dataset.size[0]}x{dataset.size[1]} px), "
         f"config {args.config}, avatar {args.avatar or 'untrained'}, "
-        f"{torch.get_num_threads()} threads, {args.steps} steps per stage and variant\n"
+        f"{torch.get_num_threads()} threads, {args.steps} steps per stage and variant; "
+        f"OpenMP waiting: {_waiting()}; load average {os.getloadavg()[0]:.2f}\n"
     )
     cycle = max(config.lpips_every, 1)  # whole cycles: as many ST-LPIPS steps as training
     steps = -(-args.steps // cycle) * cycle

@@ -85,7 +85,7 @@ class TrainingLoss:
         )
         if self.perceptual is not None and lpips_weight > 0:
             if reference is None:
-                reference = self.perceptual_reference(target)
+                reference = self.perceptual.reference(_nchw(target))
             terms["lpips"] = self.perceptual.compare(_nchw(pred), reference)[0]
             total = total + lpips_weight * terms["lpips"]
         terms["total"] = total
