@@ -97,3 +97,10 @@ def test_lpips_schedule_times_every_variant_of_both_stages(repo_root, tiny_subje
     rows = [line.split("|")[1:3] for line in out.splitlines() if line.startswith(("| 1", "| 2"))]
     assert [s.strip() for s, _ in rows] == ["1"] * 3 + ["2"] * 3
     assert rows[0][1].strip() == "as configured"
+
+
+def test_perceptual_precision_compares_float32_with_bfloat16(repo_root):
+    out = _benchmark(repo_root, "perceptual_precision.py", "--size", 48, "--rounds", 1)
+    rows = [line.split("|")[1].strip() for line in out.splitlines() if line.startswith("| ")]
+    assert rows[1:] == ["float32", "bfloat16 autocast"]
+    assert re.search(r"float32 / bfloat16: [\d.]+x", out)
