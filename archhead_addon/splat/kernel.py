@@ -126,6 +126,8 @@ def library() -> ctypes.CDLL:
     lib.ah_splat_select_isa.restype = i32
     lib.ah_splat_isa_supported.argtypes = [i32]
     lib.ah_splat_isa_supported.restype = i32
+    lib.ah_splat_set_ellipse_steps.argtypes = [i32]
+    lib.ah_splat_set_ellipse_steps.restype = i32
     _lib = lib
     set_simd(os.environ.get(SIMD_ENV, "auto"))
     return lib
@@ -141,6 +143,14 @@ def set_simd(name: str) -> str:
     if isa < 0:
         raise ValueError(f"this CPU cannot run the splat kernel's {name} path")
     return next(k for k, v in SIMD.items() if v == isa)
+
+
+def set_ellipse_steps(on: bool) -> bool:
+    """Whether the following forward passes (and their backward passes) skip the compositing
+    steps outside each Gaussian's ellipse (the default) or take every step of its box: the
+    images and gradients are the same, only the work differs (for tests and benchmarks).
+    Returns the previous setting."""
+    return bool(library().ah_splat_set_ellipse_steps(int(on)))
 
 
 def supported_simd() -> list[str]:

@@ -313,6 +313,7 @@ struct ProjectLanes {
                 out.depth[i] = float(P.tc[2][l]);
                 out.depth64[i] = P.tc[2][l];
                 for (int k = 0; k < 4; ++k) out.bbox[4 * i + k] = B.bbox[k];
+                out.q_max[i] = float(B.q_max);
                 if (out.radii)
                     for (int k = 0; k < 2; ++k)
                         out.radii[2 * i + k] = int32_t(std::ceil(B.radius[k]));

@@ -9,22 +9,28 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <utility>
 #include <vector>
 
 #include "binning.hpp"
 #include "projection.hpp"
+
+#ifdef __x86_64__
+#include <immintrin.h>  // movemasks (raster_lanes.hpp), each used under its target only
+#endif
 
 namespace ah {
 
 constexpr int kTilePixels = kTile * kTile;
 
 // A Gaussian as one tile reads it: 2D mean relative to the tile origin (small numbers keep
-// the float32 offsets accurate), conic, opacity, colour, depth, and the rows and columns of
-// the tile its box covers.
+// the float32 offsets accurate), conic, opacity, colour, depth, the bound q_max of its
+// ellipse (Bounds), and the rows and columns of the tile its box covers.
 struct TileSplat {
-    float x, y, ca, cb, cc, op, r, g, b, z;
+    float x, y, ca, cb, cc, op, r, g, b, z, q_max;
     int32_t row0, row1, col0, col1;
 };
 
@@ -35,6 +41,7 @@ struct Projected {
     std::vector<float> opacity;
     std::vector<float> depth;
     std::vector<int32_t> bbox;  // 4: x0, x1, y0, y1 inclusive
+    std::vector<float> q_max;
 };
 
 inline void gather_tile(std::vector<TileSplat>& out, const Projected& P, const float* colors,
@@ -53,12 +60,48 @@ inline void gather_tile(std::vector<TileSplat>& out, const Projected& P, const f
         s.g = colors[3 * id + 1];
         s.b = colors[3 * id + 2];
         s.z = P.depth[id];
+        s.q_max = P.q_max[id];
         s.col0 = std::max(P.bbox[4 * id] - ox, 0);
         s.col1 = std::min(P.bbox[4 * id + 1] - ox, kTile - 1);
         s.row0 = std::max(P.bbox[4 * id + 2] - oy, 0);
         s.row1 = std::min(P.bbox[4 * id + 3] - oy, kTile - 1);
     }
 }
+
+// Where a Gaussian can pass the alpha test, row by row, so that the compositing steps can
+// skip what lies outside its ellipse. With d = (s.x - x, dy), q = d^T conic d is smallest
+// over x at x = s.x + slope dy, and q <= q_max holds within sqrt(w2) of there, w2 = (q_max -
+// g dy^2) / ca. Conservative: q_max is raised by far more than the float32 round-off of the
+// falloff's power over the tile's box (relative to the size of its terms) and spans are
+// widened by a pixel, so a step skipped holds no lane that the alpha test would pass (the
+// images and gradients equal those of the whole box). Where a coefficient is not finite
+// every step of the box is taken.
+struct Ellipse {
+    float x, slope, g, inv_ca, q;
+    bool box;  // no bounds: every step of the box
+
+    Ellipse(const TileSplat& s, bool use) {
+        x = s.x;
+        inv_ca = 1.0f / s.ca;
+        slope = s.cb * inv_ca;
+        g = s.cc - s.cb * slope;
+        const float X = std::max(std::fabs(s.x - (float(s.col0) + 0.5f)),
+                                 std::fabs(s.x - (float(s.col1) + 0.5f)));
+        const float Y = std::max(std::fabs(s.y - (float(s.row0) + 0.5f)),
+                                 std::fabs(s.y - (float(s.row1) + 0.5f)));
+        const float terms = s.ca * X * X + 2.0f * std::fabs(s.cb) * X * Y + s.cc * Y * Y;
+        q = s.q_max + 1e-5f * terms;
+        box = !(use && std::isfinite(inv_ca) && std::isfinite(slope) && std::isfinite(g) &&
+                std::isfinite(q));
+    }
+    // Whether the row at dy may pass the alpha test at a pixel centre in [first, last].
+    bool reaches(float dy, float first, float last) const {
+        if (box) return true;
+        const float c = x + slope * dy, w2 = (q - g * dy * dy) * inv_ca;
+        const float d = std::max(std::max(first - 1.0f - c, c - last - 1.0f), 0.0f);
+        return w2 >= d * d;
+    }
+};
 
 struct TileFrame {
     int ox, oy, width, height;  // tile origin in pixels, image size

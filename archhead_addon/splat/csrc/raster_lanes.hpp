@@ -26,16 +26,20 @@ struct Lanes {
     }
     static void store(float* p, vf v) { std::memcpy(p, &v, sizeof v); }
     static void store(int32_t* p, vi v) { std::memcpy(p, &v, sizeof v); }
-    static float lane_sum(vf v) {
-        float s = 0.0f;
-        for (int i = 0; i < L; ++i) s += v[i];
-        return s;
+    // Bit i: lane i of the mask m (0 or -1) is set; a movemask where the target has one
+    // (GCC's generic code moves the lanes out one by one).
+    static uint32_t bits(vi m) {
+#ifdef __x86_64__
+        if constexpr (L == 4) return uint32_t(_mm_movemask_ps((__m128)m));
+        if constexpr (L == 8) return uint32_t(_mm256_movemask_ps((__m256)m));
+        if constexpr (L == 16) return uint32_t(_mm512_movepi32_mask((__m512i)m));
+#endif
+        uint32_t b = 0;
+        for (int i = 0; i < L; ++i) b |= uint32_t(m[i] & 1) << i;
+        return b;
     }
-    static bool any(vi m) {
-        int32_t s = 0;
-        for (int i = 0; i < L; ++i) s |= m[i];
-        return s != 0;
-    }
+    static bool any(vi m) { return bits(m) != 0; }
+    static vf max(vf a, vf b) { return a > b ? a : b; }
 
     // exp for the Gaussian falloff (Cephes expf polynomial, about 1 ulp, exp(0) == 1
     // exactly). NaN and large |x| map to the clamp bounds.
@@ -129,13 +133,38 @@ struct Lanes {
     struct Moments {
         vf m_x{}, m_y{}, m_xx{}, m_xy{}, m_yy{}, d_op{}, d_r{}, d_g{}, d_b{}, d_z{};
 
-        // Lane sums added to sums: m_x, m_y, m_xx, m_xy, m_yy, d_op, d_r, d_g, d_b, d_z.
-        void add_to(float* sums) const {
-            const vf* v[kEntryGrad] = {&m_x,  &m_y, &m_xx, &m_xy, &m_yy,
-                                       &d_op, &d_r, &d_g,  &d_b,  &d_z};
-            for (int c = 0; c < kEntryGrad; ++c) sums[c] += lane_sum(*v[c]);
+        // Lane sums: m_x, m_y, m_xx, m_xy, m_yy, d_op, d_r, d_g, d_b, d_z.
+        void sums(float* out) const {
+            vf v[kEntryGrad] = {m_x, m_y, m_xx, m_xy, m_yy, d_op, d_r, d_g, d_b, d_z};
+            reduce<L>(v, kEntryGrad);
+            for (int c = 0; c < kEntryGrad; ++c) out[c] = v[c / L][c % L];
         }
     };
+
+    // The lane sums of many vectors together, a transpose-like tree: while each of the n
+    // vectors' sums is spread over segments of S lanes, one fold adds the segments' halves of
+    // two vectors and packs the results into one vector, halving S and n. Ends with the sums
+    // in lane order, L to a vector.
+    template <int S>
+    static void reduce(vf* v, int n) {
+        if constexpr (S > 1) {
+            for (int i = 0; i < n; i += 2)
+                v[i / 2] = fold<S>(v[i], i + 1 < n ? v[i + 1] : vf{},
+                                   std::make_integer_sequence<int, L>());
+            reduce<S / 2>(v, (n + 1) / 2);
+        }
+    }
+    // Output lane o takes, from a (first half) or b, segment o / (S/2) of its half's vector:
+    // its lane o % (S/2) plus the lane S/2 above.
+    static constexpr int fold_lane(int S, int o, int upper) {
+        const int h = S / 2, in = o % (L / 2);
+        return (o < L / 2 ? 0 : L) + in / h * S + in % h + upper * h;
+    }
+    template <int S, int... O>
+    static vf fold(vf a, vf b, std::integer_sequence<int, O...>) {
+        return __builtin_shufflevector(a, b, fold_lane(S, O, 0)...) +
+               __builtin_shufflevector(a, b, fold_lane(S, O, 1)...);
+    }
 
     // Un-composites sample j (index jj) of Gaussian s at the L pixels at p (those in
     // `valid`), back to front.
@@ -172,68 +201,129 @@ struct Lanes {
     }
 };
 
+// The step layouts. A layout numbers the steps of a Gaussian's box (bit k of a 64-bit step
+// mask); `steps` runs the forward's (those the Gaussian's ellipse reaches, in rows with a
+// live pixel) as step(k, p, centre, dy, valid), and `masked_steps` the steps of a mask in the
+// same order as step(p, centre, dy, valid): the backward's, those in which the forward
+// composited a sample (exactly where it un-composites one: it skips no other lane).
+
 // Row-major tile state, one chunk of L pixels of one row per step (AVX2: 8; baseline: 4,
 // as SSE2 has no 8-lane compares and GCC would split them into scalar code).
 template <int L>
 struct RowSteps {
     typedef Lanes<L> V;
     static constexpr int kSize = kTilePixels;
+    static constexpr int kGroups = 1;          // live-row masks (bit py), all columns
+    static constexpr int kPerRow = kTile / L;  // steps in a row at most: k = py kPerRow + i
     static int at(int px, int py) { return py * kTile + px; }
-    static bool row_any(const int32_t* mask, int py) {
-        typename V::vi row{};
-        for (int h = 0; h < kTile / L; ++h) row |= V::load(mask + at(L * h, py));
-        return V::any(row);
+    static void live_rows(const int32_t* live, uint32_t* rows) {
+        rows[0] = 0;
+        for (int py = 0; py < kTile; ++py) {
+            typename V::vi row{};
+            for (int h = 0; h < kTile / L; ++h) row |= V::load(live + at(L * h, py));
+            rows[0] |= uint32_t(V::any(row)) << py;
+        }
     }
-    // step(p, centre, dy, valid) for each step of s's box in the rows with active(py). Steps
-    // start at multiples of 4 columns (a box's span rounded to 4 pixels, not L), shifted
-    // back to stay inside the row, with the columns an earlier step covered masked off.
-    template <class Active, class Step>
-    static void steps(const TileSplat& s, Active active, Step step) {
+    // Chunk i of a row starts at column col, a multiple of 4 (a box's span rounded to 4
+    // pixels, not L), and its step at start, shifted back to stay inside the row, with the
+    // columns an earlier chunk covered masked off.
+    struct Chunk {
+        int col, start;
+        Chunk(const TileSplat& s, int i)
+            : col((s.col0 & ~3) + L * i), start(std::min(col, kTile - L)) {}
+    };
+    static typename V::vi lanes() {
         typename V::vi lane;
         for (int i = 0; i < L; ++i) lane[i] = i;
+        return lane;
+    }
+    template <class Step>
+    static void steps(const TileSplat& s, bool ellipse, const uint32_t* live, Step step) {
+        const Ellipse e(s, ellipse);
         for (int py = s.row0; py <= s.row1; ++py) {
-            if (!active(py)) continue;
+            if (!((live[0] >> py) & 1)) continue;
             const float dy = s.y - (float(py) + 0.5f);
-            for (int col = s.col0 & ~3; col <= s.col1;) {
-                const int start = std::min(col, kTile - L);
-                step(at(start, py), V::lane_centres(start), dy, lane >= col - start);
-                col = start + L;
+            for (int i = 0; (s.col0 & ~3) + L * i <= s.col1; ++i) {
+                const Chunk c(s, i);
+                if (!e.reaches(dy, float(c.col) + 0.5f, float(c.start + L - 1) + 0.5f)) continue;
+                step(py * kPerRow + i, at(c.start, py), V::lane_centres(c.start), dy,
+                     lanes() >= c.col - c.start);
             }
+        }
+    }
+    template <class Step>
+    static void masked_steps(const TileSplat& s, uint64_t mask, Step step) {
+        for (; mask; mask &= mask - 1) {
+            const int k = __builtin_ctzll(mask), py = k / kPerRow;
+            const Chunk c(s, k % kPerRow);
+            step(at(c.start, py), V::lane_centres(c.start), s.y - (float(py) + 0.5f),
+                 lanes() >= c.col - c.start);
         }
     }
 };
 
 // Tile state stored half by half (8 columns x 16 rows, then a padding row), so that two
 // rows of one half are 16 contiguous values: one 16-lane step covers 8 columns x 2 rows,
-// and a Gaussian takes ceil(rows / 2) steps per half its box reaches (AVX-512). (Pairs
-// aligned to even rows evaluate more lanes and measured no faster.)
+// and a Gaussian takes up to ceil(rows / 2) steps per half its box reaches (AVX-512): step
+// k = 8 h + i covers half h, rows row0 + 2 i and the next. (Pairs aligned to even rows
+// evaluate more lanes and measured no faster.)
 struct PairSteps {
     typedef Lanes<16> V;
     static constexpr int kHalf = 8 * (kTile + 1);
     static constexpr int kSize = 2 * kHalf;
+    static constexpr int kGroups = 2;  // live-row masks (bit py), one per half
     static int at(int px, int py) { return (px / 8) * kHalf + py * 8 + px % 8; }
-    static bool row_any(const int32_t* mask, int py) {
+    static void live_rows(const int32_t* live, uint32_t* rows) {
         typedef Lanes<8> H;
-        return H::any(H::load(mask + at(0, py)) | H::load(mask + at(8, py)));
-    }
-    template <class Active, class Step>
-    static void steps(const TileSplat& s, Active active, Step step) {
-        V::vf centre[2], row_offset;
-        V::vi upper;  // the lanes of the pair's first row
-        for (int i = 0; i < 16; ++i) {
-            centre[0][i] = float(i % 8) + 0.5f;
-            centre[1][i] = float(8 + i % 8) + 0.5f;
-            row_offset[i] = float(i / 8) + 0.5f;  // py + 1.5 == (py + 1) + 0.5 exactly
-            upper[i] = i < 8 ? -1 : 0;
+        for (int h = 0; h < 2; ++h) {
+            rows[h] = 0;
+            for (int py = 0; py < kTile; ++py)
+                rows[h] |= uint32_t(H::any(H::load(live + at(8 * h, py)))) << py;
         }
-        const V::vi both = V::splat_i(-1);
-        for (int h = s.col0 / 8; h <= s.col1 / 8; ++h)
-            for (int py = s.row0; py <= s.row1; py += 2) {
-                const bool second = py < s.row1;
-                if (!active(py) && !(second && active(py + 1))) continue;
-                const V::vf dy = s.y - (float(py) + row_offset);
-                step(at(8 * h, py), centre[h], dy, second ? both : upper);
-            }
+    }
+    // The steps of s's box that its ellipse reaches (bit k), all 16 evaluated at once.
+    static uint32_t reached(const TileSplat& s, const Ellipse& e) {
+        V::vi h, i;
+        for (int k = 0; k < 16; ++k) h[k] = k / 8, i[k] = k % 8;
+        const V::vi py = s.row0 + 2 * i;
+        const V::vi in_box = (py <= s.row1) & (h >= s.col0 / 8) & (h <= s.col1 / 8);
+        if (e.box) return V::bits(in_box);
+        const V::vf first = __builtin_convertvector(8 * h, V::vf) - 0.5f;  // a pixel wider
+        const V::vf last = first + 9.0f;
+        const auto row = [&](V::vf dy) {
+            const V::vf c = e.x + e.slope * dy, w2 = (e.q - e.g * dy * dy) * e.inv_ca;
+            const V::vf d = V::max(V::max(first - c, c - last), V::splat(0.0f));
+            return w2 >= d * d;
+        };
+        const V::vf dy = s.y - (__builtin_convertvector(py, V::vf) + 0.5f);
+        return V::bits(in_box & (row(dy) | ((py < s.row1) & row(dy - 1.0f))));
+    }
+    template <class Step>
+    static void steps(const TileSplat& s, bool ellipse, const uint32_t* live, Step step) {
+        for (uint32_t m = reached(s, Ellipse(s, ellipse)); m; m &= m - 1) {
+            const int k = __builtin_ctz(m), py = s.row0 + 2 * (k % 8);
+            const bool second = py < s.row1;
+            if ((live[k / 8] >> py) & (second ? 3u : 1u))
+                step_at(s, k, [&](auto... a) { step(k, a...); });
+        }
+    }
+    template <class Step>
+    static void masked_steps(const TileSplat& s, uint64_t mask, Step step) {
+        for (; mask; mask &= mask - 1) step_at(s, __builtin_ctzll(mask), step);
+    }
+    // Step k of s as step(p, centre, dy, valid).
+    template <class Step>
+    static void step_at(const TileSplat& s, int k, Step&& step) {
+        V::vf centre, row_offset;
+        V::vi upper;  // the lanes of the pair's first row
+        for (int l = 0; l < 16; ++l) {
+            centre[l] = float(l % 8) + 0.5f;
+            row_offset[l] = float(l / 8) + 0.5f;  // py + 1.5 == (py + 1) + 0.5 exactly
+            upper[l] = l < 8 ? -1 : 0;
+        }
+        const int h = k / 8, py = s.row0 + 2 * (k % 8);
+        const V::vf dy = s.y - (float(py) + row_offset);
+        step(at(8 * h, py), centre + float(8 * h), dy, py < s.row1 ? V::splat_i(-1) : upper);
     }
 };
 
@@ -244,11 +334,15 @@ struct Raster {
     static constexpr int kSize = Layout::kSize;
 
     // Front-to-back compositing of one tile. Writes rgb/alpha/depth for the tile's pixels
-    // and the per-pixel final transmittance and contributor count for the backward pass;
-    // lanes[0] = pixel lanes evaluated, lanes[1] = those that composited a sample.
+    // and, for the backward pass, the per-pixel final transmittance and contributor count
+    // and each Gaussian's mask of the steps that composited a sample (step_mask[j], left
+    // as it is for Gaussians after the tile turned opaque); lanes[0] = pixel lanes
+    // evaluated, lanes[1] = those that composited a sample. ellipse: skip the steps outside
+    // each Gaussian's ellipse (Ellipse), else take every step of its box.
     static void composite_forward(const std::vector<TileSplat>& G, const TileFrame& f,
-                                  const float* background, float* rgb, float* alpha, float* depth,
-                                  float* T_final, int32_t* last_out, int64_t* lanes) {
+                                  const float* background, bool ellipse, float* rgb, float* alpha,
+                                  float* depth, float* T_final, int32_t* last_out,
+                                  uint64_t* step_mask, int64_t* lanes) {
         alignas(64) float T[kSize], cr[kSize], cg[kSize], cb[kSize], cz[kSize];
         alignas(64) int32_t live[kSize], last[kSize];
         std::fill_n(T, kSize, 1.0f);
@@ -258,27 +352,29 @@ struct Raster {
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
             for (int px = 0; px < kTile && f.ox + px < f.width; ++px) live[Layout::at(px, py)] = -1;
         const typename V::ForwardState S{T, cr, cg, cb, cz, last, live};
-        bool row_live[kTile];
+        uint32_t live_rows[Layout::kGroups] = {};
         typename V::vi used{};
         int64_t steps = 0;
         const int64_t n = int64_t(G.size());
         for (int64_t j = 0; j < n; ++j) {
             if (j % kLiveCheck == 0) {
-                bool tile_live = false;
-                for (int py = 0; py < kTile; ++py) {
-                    row_live[py] = Layout::row_any(live, py);
-                    tile_live |= row_live[py];
-                }
+                Layout::live_rows(live, live_rows);
+                uint32_t tile_live = 0;
+                for (uint32_t rows : live_rows) tile_live |= rows;
                 if (!tile_live) break;
             }
             const TileSplat& s = G[j];
             const typename V::vi jj = V::splat_i(int32_t(j + 1));
-            Layout::steps(
-                s, [&](int py) { return row_live[py]; },
-                [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
-                    used += V::forward_step(S, s, p, centre, dy, jj, valid);
-                    ++steps;
-                });
+            uint64_t mask = 0;
+            Layout::steps(s, ellipse, live_rows,
+                          [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
+                              const typename V::vi use =
+                                  V::forward_step(S, s, p, centre, dy, jj, valid);
+                              used += use;
+                              ++steps;
+                              mask |= uint64_t(V::any(use)) << k;
+                          });
+            step_mask[j] = mask;
         }
 
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
@@ -297,21 +393,20 @@ struct Raster {
         lanes[1] = V::count(used);
     }
 
-    // Back-to-front pass over one tile: transmittance is recovered by dividing out each
-    // alpha, and the gradient of everything behind a sample is carried as one scalar per
-    // pixel. Writes the kEntryGrad floats of the tile's j-th entry at
-    // entry_grad + slot[j] * kEntryGrad.
+    // Back-to-front pass over one tile, over the steps in which the forward composited a
+    // sample: transmittance is recovered by dividing out each alpha, and the gradient of
+    // everything behind a sample is carried as one scalar per pixel. Writes the kEntryGrad
+    // floats of the tile's j-th entry at entry_grad + slot[j] * kEntryGrad.
     static void composite_backward(const std::vector<TileSplat>& G, const TileFrame& f,
                                    const float* background, const float* g_rgb,
                                    const float* g_alpha, const float* g_depth, const float* T_final,
-                                   const int32_t* last_in, const int64_t* slot, float* entry_grad) {
+                                   const int32_t* last_in, const uint64_t* step_mask,
+                                   const int64_t* slot, float* entry_grad) {
         alignas(64) float T[kSize], behind[kSize], gr[kSize], gg[kSize], gb[kSize], gz[kSize];
         alignas(64) int32_t last[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {behind, gr, gg, gb, gz}) std::fill_n(c, kSize, 0.0f);
         std::fill_n(last, kSize, 0);  // no sample is drawn at padding or outside the image
-        int row_last[kTile] = {0};
-        int tile_last = 0;
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
             for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
                 const int p = Layout::at(px, py);
@@ -327,28 +422,25 @@ struct Raster {
                     (gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2] - ga) *
                     T[p];
                 last[p] = last_in[o];
-                row_last[py] = std::max(row_last[py], last[p]);
             }
-            tile_last = std::max(tile_last, row_last[py]);
         }
 
-        const int64_t n = int64_t(G.size());
-        const int64_t n_used = std::min<int64_t>(n, tile_last);
-        for (int64_t j = n_used; j < n; ++j)
-            std::fill_n(entry_grad + slot[j] * kEntryGrad, kEntryGrad, 0.0f);
         const typename V::BackwardState S{T, behind, gr, gg, gb, gz, last};
-        for (int64_t j = n_used - 1; j >= 0; --j) {
+        for (int64_t j = int64_t(G.size()) - 1; j >= 0; --j) {
+            float* e = entry_grad + slot[j] * kEntryGrad;
+            if (!step_mask[j]) {
+                std::fill_n(e, kEntryGrad, 0.0f);
+                continue;
+            }
             const TileSplat& s = G[j];
             const typename V::vi jj = V::splat_i(int32_t(j));
             typename V::Moments M;
-            Layout::steps(
-                s, [&](int py) { return row_last[py] > j; },
-                [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
-                    V::backward_step(S, M, s, p, centre, dy, jj, valid);
-                });
-            float m[kEntryGrad] = {0};
-            M.add_to(m);
-            float* e = entry_grad + slot[j] * kEntryGrad;
+            Layout::masked_steps(s, step_mask[j],
+                                 [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
+                                     V::backward_step(S, M, s, p, centre, dy, jj, valid);
+                                 });
+            float m[kEntryGrad];
+            M.sums(m);
             e[0] = -(s.ca * m[0] + s.cb * m[1]);  // dp/dmean_x = -(ca dx + cb dy)
             e[1] = -(s.cb * m[0] + s.cc * m[1]);
             e[2] = -0.5f * m[2];

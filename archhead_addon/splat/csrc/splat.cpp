@@ -69,6 +69,11 @@ Kernels& active_kernels() {
     return k;
 }
 
+bool& ellipse_steps() {
+    static bool on = true;
+    return on;
+}
+
 int thread_count(const ah_splat_params& p) {
     return p.num_threads > 0 ? p.num_threads : omp_get_max_threads();
 }
@@ -77,18 +82,20 @@ struct Context {
     ah_splat_params params;
     Camera cam;
     Kernels kernels;  // the forward's, so that its backward runs the same lanes
+    bool ellipse;     // the forward skipped the steps outside each Gaussian's ellipse
     int64_t n;
     std::vector<float> means, log_scales, quats, logits, colors;
     Projected proj;
     Bins bins;
     std::vector<float> T_final;
     std::vector<int32_t> last;
+    std::vector<uint64_t> step_mask;  // per tile-list entry: its steps that drew a sample
     // Wall-clock seconds of the phases, for the benchmark's split (ah_splat_stats).
     double t_project = 0, t_bin = 0, t_composite = 0, t_bwd_composite = 0, t_bwd_project = 0;
     int64_t lanes_evaluated = 0, lanes_used = 0;  // compositing's pixel lanes (forward)
 
     Context(const ah_splat_params& p, int64_t n_)
-        : params(p), cam(p), kernels(active_kernels()), n(n_) {}
+        : params(p), cam(p), kernels(active_kernels()), ellipse(ellipse_steps()), n(n_) {}
 };
 
 template <typename T>
@@ -117,12 +124,13 @@ void project_all(Context& C) {
     C.proj.opacity.assign(n, 0.0f);
     C.proj.depth.assign(n, 0.0f);
     C.proj.bbox.assign(4 * n, 0);
+    C.proj.q_max.assign(n, 0.0f);
     std::vector<double> depth64(n, 0.0);
     std::vector<uint8_t> visible(n, 0);
     const double t0 = omp_get_wtime();
-    const ProjectOut out{
-        C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(), C.proj.depth.data(),
-        depth64.data(),       C.proj.bbox.data(),  visible.data(),        nullptr};
+    const ProjectOut out{C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(),
+                         C.proj.depth.data(),  depth64.data(),      C.proj.bbox.data(),
+                         C.proj.q_max.data(),  visible.data(),      nullptr};
     project_blocks(C.kernels, C.cam, inputs(C), n, out, thread_count(C.params));
     const double t1 = omp_get_wtime();
     C.t_project = t1 - t0;
@@ -161,12 +169,15 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     const int64_t pixels = int64_t(C.params.width) * C.params.height;
     C.T_final.assign(pixels, 1.0f);
     C.last.assign(pixels, 0);
+    C.step_mask.assign(C.bins.tile_ids.size(), 0);
     std::vector<int64_t> lanes(2 * (C.bins.tile_start.size() - 1));
     const double t0 = omp_get_wtime();
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t, int64_t t) {
-        C.kernels.composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
-                                    C.last.data(), &lanes[2 * t]);
-    });
+    for_each_tile(C,
+                  [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t t) {
+                      C.kernels.composite_forward(G, f, C.params.background, C.ellipse, rgb, alpha,
+                                                  depth, C.T_final.data(), C.last.data(),
+                                                  &C.step_mask[s], &lanes[2 * t]);
+                  });
     C.t_composite = omp_get_wtime() - t0;
     for (size_t t = 0; t < lanes.size(); t += 2) {
         C.lanes_evaluated += lanes[t];
@@ -182,8 +193,8 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t) {
         C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth,
-                                     C.T_final.data(), C.last.data(), &C.bins.slot_of[s],
-                                     entry_grad.data());
+                                     C.T_final.data(), C.last.data(), &C.step_mask[s],
+                                     &C.bins.slot_of[s], entry_grad.data());
     });
     const double t1 = omp_get_wtime();
     C.t_bwd_composite = t1 - t0;
@@ -232,6 +243,12 @@ int32_t ah_splat_select_isa(int32_t isa) {
 
 int32_t ah_splat_isa_supported(int32_t isa) { return isa_supported(isa) ? 1 : 0; }
 
+int32_t ah_splat_set_ellipse_steps(int32_t on) {
+    const bool was = ellipse_steps();
+    ellipse_steps() = on != 0;
+    return was ? 1 : 0;
+}
+
 int ah_splat_project(const ah_splat_params* params, int64_t n, const float* means,
                      const float* log_scales, const float* quats, const float* opacity_logits,
                      double* means2d, float* conics, float* depths, float* opacities,
@@ -245,9 +262,10 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
     std::memset(radii, 0, sizeof(int32_t) * 2 * n);
     std::vector<double> depth64(n);
     std::vector<int32_t> bbox(4 * n);
+    std::vector<float> q_max(n);
     std::vector<uint8_t> visible(n);
-    const ProjectOut out{means2d,        conics,      opacities,      depths,
-                         depth64.data(), bbox.data(), visible.data(), radii};
+    const ProjectOut out{means2d,     conics,       opacities,      depths, depth64.data(),
+                         bbox.data(), q_max.data(), visible.data(), radii};
     project_blocks(active_kernels(), cam, Gaussians{means, log_scales, quats, opacity_logits}, n,
                    out, thread_count(*params));
     return 0;

@@ -79,6 +79,11 @@ void ah_splat_release(void* ctx);
 int32_t ah_splat_select_isa(int32_t isa);
 // 1 when this CPU and build can run `isa`, else 0.
 int32_t ah_splat_isa_supported(int32_t isa);
+// 1 (the default): the compositing skips the steps that lie outside each Gaussian's
+// ellipse; 0: it takes every step of the Gaussian's box (same images and gradients, for
+// tests and benchmarks). Applies to the following forward passes (and their backward
+// passes); returns the previous setting. Not to be called while a render runs.
+int32_t ah_splat_set_ellipse_steps(int32_t on);
 
 int32_t ah_splat_abi_version(void);
 
