@@ -53,10 +53,10 @@ inline std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& ids,
 }
 
 // Tile lists. tile_start has tiles + 1 entries; tile_ids[tile_start[t] .. tile_start[t+1])
-// are the Gaussians touching tile t, front to back. For the backward reduction, tile-list
-// entry p has the slot slot_of[p] in Gaussian order: the k-th sorted Gaussian owns slots
-// isect_start[k] .. isect_start[k+1] (its tiles in increasing order), so the tiles scatter
-// their gradient records there and each Gaussian reads its own contiguously.
+// are the Gaussians touching tile t, front to back. For the
+// backward reduction, tile-list entry p has the slot slot_of[p] in Gaussian order: the k-th sorted
+// Gaussian owns slots isect_start[k] .. isect_start[k+1] (its tiles in increasing order), so the
+// tiles scatter their gradient records there and each Gaussian reads its own contiguously.
 struct Bins {
     int tiles_x = 0, tiles_y = 0;
     std::vector<int32_t> sorted;  // visible Gaussians, front to back

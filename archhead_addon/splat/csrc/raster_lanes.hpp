@@ -39,6 +39,15 @@ struct Lanes {
         return b;
     }
     static bool any(vi m) { return bits(m) != 0; }
+    static vf sqrt(vf x) {
+#ifdef __x86_64__
+        if constexpr (L == 4) return (vf)_mm_sqrt_ps((__m128)x);
+        if constexpr (L == 8) return (vf)_mm256_sqrt_ps((__m256)x);
+        if constexpr (L == 16) return (vf)_mm512_mask_sqrt_ps((__m512)x, 0xffff, (__m512)x);
+#endif
+        for (int i = 0; i < L; ++i) x[i] = std::sqrt(x[i]);
+        return x;
+    }
     static vf max(vf a, vf b) { return a > b ? a : b; }
 
     // exp for the Gaussian falloff (Cephes expf polynomial, about 1 ulp, exp(0) == 1
@@ -80,11 +89,27 @@ struct Lanes {
         return f;
     }
 
-    // Pixel centres of columns first .. first + L - 1 (exact: small integers and halves).
+    // Pixel centres of columns (or rows) first .. first + L - 1 (exact: small integers and
+    // halves).
     static vf lane_centres(int first) {
         vf c;
         for (int i = 0; i < L; ++i) c[i] = float(first + i) + 0.5f;
         return c;
+    }
+
+    // For each tile row py, the pixel centres [lo[py], hi[py]] (tile coordinates; lo > hi:
+    // none) where s may pass the alpha test (Span).
+    static void row_spans(const TileSplat& s, float* lo, float* hi) {
+        constexpr float inf = std::numeric_limits<float>::infinity();
+        const Span& e = s.span;
+        for (int r = 0; r < kTile; r += L) {
+            const vf dy = s.y - lane_centres(r);
+            const vf c = s.x + e.slope * dy, w2 = (e.q - e.g * dy * dy) * e.inv_ca;
+            const vf w = sqrt(max(w2, splat(0.0f))) + kSpanMargin;
+            const vf l = c - w, h = c + w;  // NaN only as inf - inf: the whole row
+            store(lo + r, w2 < 0.0f ? splat(inf) : (l == l ? l : splat(-inf)));
+            store(hi + r, w2 < 0.0f ? splat(-inf) : (h == h ? h : splat(inf)));
+        }
     }
 
     // The tile's per-pixel state, rows of kTile pixels.
@@ -172,7 +197,8 @@ struct Lanes {
     static void backward_step(const BackwardState& S, Moments& M, const TileSplat& s, int p,
                               vf centre, DY dy, vi jj, vi valid) {
         const Falloff fo = falloff(s, centre, dy);
-        const vi ok = fo.ok & (jj < load(S.last + p)) & valid;
+        const vi ok = (jj < load(S.last + p)) & valid & fo.ok;  // (this order: GCC 12 keeps
+        // the masks in registers, the other moved fo.ok out bit by bit)
         const vf a = ok ? fo.a : splat(0.0f);
         const vf inv_one_minus = 1.0f / (1.0f - a);
         const vf Tj = load(S.T + p) * inv_one_minus;
@@ -201,133 +227,94 @@ struct Lanes {
     }
 };
 
-// The step layouts. A layout numbers the steps of a Gaussian's box (bit k of a 64-bit step
-// mask); `steps` runs the forward's (those the Gaussian's ellipse reaches, in rows with a
-// live pixel) as step(k, p, centre, dy, valid), and `masked_steps` the steps of a mask in the
-// same order as step(p, centre, dy, valid): the backward's, those in which the forward
-// composited a sample (exactly where it un-composites one: it skips no other lane).
-
-// Row-major tile state, one chunk of L pixels of one row per step (AVX2: 8; baseline: 4,
-// as SSE2 has no 8-lane compares and GCC would split them into scalar code).
-template <int L>
-struct RowSteps {
-    typedef Lanes<L> V;
-    static constexpr int kSize = kTilePixels;
-    static constexpr int kGroups = 1;          // live-row masks (bit py), all columns
-    static constexpr int kPerRow = kTile / L;  // steps in a row at most: k = py kPerRow + i
-    static int at(int px, int py) { return py * kTile + px; }
+// The step layout: the tile stored block by block, C columns x (kTile + R - 1) rows each
+// (R - 1 rows of padding), so that R consecutive rows of a block are C R contiguous values
+// and one step of L = C R lanes covers C columns x R rows starting at any row. A Gaussian
+// takes the steps of the blocks its box reaches in bands of R rows from its first row:
+// step k = band kBlocks + b (bit k of a 64-bit step mask). `steps` runs the forward's (those
+// the Gaussian's ellipse reaches, with a live pixel) as step(k, p, centre, dy, valid), and
+// `masked_steps` those of a mask in the same order as step(p, centre, dy, valid): the
+// backward's, where the forward composited a sample (exactly the lanes it un-composites).
+// AVX-512: 4 x 4 (about 15 % fewer steps on faces than 8 x 2, as small Gaussians leave
+// less of a narrower block unused); AVX2: 4 x 2; baseline: 4 x 1, as SSE2 has no 8-lane
+// compares and GCC would split them into scalar code.
+template <int C, int R>
+struct BlockSteps {
+    typedef Lanes<C * R> V;
+    static constexpr int kRows = kTile + R - 1;
+    static constexpr int kBlock = C * kRows;
+    static constexpr int kBlocks = kTile / C;
+    static constexpr int kSize = kBlocks * kBlock;
+    static constexpr int kGroups = kBlocks;  // live-row masks (bit py), one per block
+    static_assert(kBlocks * ((kTile + R - 1) / R) <= 64, "step masks have 64 bits");
+    static int at(int px, int py) { return (px / C) * kBlock + py * C + px % C; }
+    // Bit py of rows[b]: a pixel of row py of block b is live. From the lane bits of a
+    // block's first kTile rows (bit C py + x), folding each row's C bits into one.
     static void live_rows(const int32_t* live, uint32_t* rows) {
-        rows[0] = 0;
-        for (int py = 0; py < kTile; ++py) {
-            typename V::vi row{};
-            for (int h = 0; h < kTile / L; ++h) row |= V::load(live + at(L * h, py));
-            rows[0] |= uint32_t(V::any(row)) << py;
+        if constexpr (C != 4) {
+            for (int b = 0; b < kBlocks; ++b) {
+                rows[b] = 0;
+                for (int py = 0; py < kTile; ++py)
+                    rows[b] |= uint32_t(Lanes<C>::any(Lanes<C>::load(live + at(C * b, py)))) << py;
+            }
+            return;
+        }
+        for (int b = 0; b < kBlocks; ++b) {
+            uint64_t m = 0;
+            for (int i = 0; i < C * kTile / V::kWidth; ++i)
+                m |= uint64_t(V::bits(V::load(live + at(C * b, 0) + V::kWidth * i)))
+                     << (V::kWidth * i);
+            m = (m | m >> 1 | m >> 2 | m >> 3) & 0x1111111111111111u;  // row py: bit 4 py
+            m = (m | m >> 3) & 0x0303030303030303u;
+            m = (m | m >> 6) & 0x000f000f000f000fu;
+            m = (m | m >> 12) & 0x000000ff000000ffu;
+            rows[b] = uint32_t((m | m >> 24) & 0xffffu);
         }
     }
-    // Chunk i of a row starts at column col, a multiple of 4 (a box's span rounded to 4
-    // pixels, not L), and its step at start, shifted back to stay inside the row, with the
-    // columns an earlier chunk covered masked off.
-    struct Chunk {
-        int col, start;
-        Chunk(const TileSplat& s, int i)
-            : col((s.col0 & ~3) + L * i), start(std::min(col, kTile - L)) {}
-    };
-    static typename V::vi lanes() {
-        typename V::vi lane;
-        for (int i = 0; i < L; ++i) lane[i] = i;
-        return lane;
-    }
     template <class Step>
-    static void steps(const TileSplat& s, bool ellipse, const uint32_t* live, Step step) {
-        const Ellipse e(s, ellipse);
-        for (int py = s.row0; py <= s.row1; ++py) {
-            if (!((live[0] >> py) & 1)) continue;
-            const float dy = s.y - (float(py) + 0.5f);
-            for (int i = 0; (s.col0 & ~3) + L * i <= s.col1; ++i) {
-                const Chunk c(s, i);
-                if (!e.reaches(dy, float(c.col) + 0.5f, float(c.start + L - 1) + 0.5f)) continue;
-                step(py * kPerRow + i, at(c.start, py), V::lane_centres(c.start), dy,
-                     lanes() >= c.col - c.start);
+    [[gnu::always_inline]] static void steps(const TileSplat& s, const uint32_t* live, Step step) {
+        alignas(64) float lo[kTile], hi[kTile];
+        V::row_spans(s, lo, hi);
+        for (int band = 0, py = s.row0; py <= s.row1; ++band, py += R) {
+            const int rows = std::min(R, s.row1 - py + 1);
+            float l = lo[py], h = hi[py];
+            for (int r = 1; r < rows; ++r) l = std::min(l, lo[py + r]), h = std::max(h, hi[py + r]);
+            // the blocks of the box whose centres C b + 0.5 .. C b + C - 0.5 meet [l, h]
+            const float first = (l - (C - 0.5f)) / C, last = (h - 0.5f) / C;
+            int b0 = s.col0 / C, b1 = s.col1 / C;
+            if (first > b0) b0 = first > b1 ? b1 + 1 : int(std::ceil(first));
+            if (last < b1) b1 = last < b0 ? b0 - 1 : int(std::floor(last));
+            const uint32_t band_rows = ((1u << rows) - 1) << py;
+            for (int b = b0; b <= b1; ++b) {
+                const int k = band * kBlocks + b;
+                if (live[b] & band_rows) step_at(s, k, [&](auto... a) { step(k, a...); });
             }
         }
     }
     template <class Step>
-    static void masked_steps(const TileSplat& s, uint64_t mask, Step step) {
-        for (; mask; mask &= mask - 1) {
-            const int k = __builtin_ctzll(mask), py = k / kPerRow;
-            const Chunk c(s, k % kPerRow);
-            step(at(c.start, py), V::lane_centres(c.start), s.y - (float(py) + 0.5f),
-                 lanes() >= c.col - c.start);
-        }
-    }
-};
-
-// Tile state stored half by half (8 columns x 16 rows, then a padding row), so that two
-// rows of one half are 16 contiguous values: one 16-lane step covers 8 columns x 2 rows,
-// and a Gaussian takes up to ceil(rows / 2) steps per half its box reaches (AVX-512): step
-// k = 8 h + i covers half h, rows row0 + 2 i and the next. (Pairs aligned to even rows
-// evaluate more lanes and measured no faster.)
-struct PairSteps {
-    typedef Lanes<16> V;
-    static constexpr int kHalf = 8 * (kTile + 1);
-    static constexpr int kSize = 2 * kHalf;
-    static constexpr int kGroups = 2;  // live-row masks (bit py), one per half
-    static int at(int px, int py) { return (px / 8) * kHalf + py * 8 + px % 8; }
-    static void live_rows(const int32_t* live, uint32_t* rows) {
-        typedef Lanes<8> H;
-        for (int h = 0; h < 2; ++h) {
-            rows[h] = 0;
-            for (int py = 0; py < kTile; ++py)
-                rows[h] |= uint32_t(H::any(H::load(live + at(8 * h, py)))) << py;
-        }
-    }
-    // The steps of s's box that its ellipse reaches (bit k), all 16 evaluated at once.
-    static uint32_t reached(const TileSplat& s, const Ellipse& e) {
-        V::vi h, i;
-        for (int k = 0; k < 16; ++k) h[k] = k / 8, i[k] = k % 8;
-        const V::vi py = s.row0 + 2 * i;
-        const V::vi in_box = (py <= s.row1) & (h >= s.col0 / 8) & (h <= s.col1 / 8);
-        if (e.box) return V::bits(in_box);
-        const V::vf first = __builtin_convertvector(8 * h, V::vf) - 0.5f;  // a pixel wider
-        const V::vf last = first + 9.0f;
-        const auto row = [&](V::vf dy) {
-            const V::vf c = e.x + e.slope * dy, w2 = (e.q - e.g * dy * dy) * e.inv_ca;
-            const V::vf d = V::max(V::max(first - c, c - last), V::splat(0.0f));
-            return w2 >= d * d;
-        };
-        const V::vf dy = s.y - (__builtin_convertvector(py, V::vf) + 0.5f);
-        return V::bits(in_box & (row(dy) | ((py < s.row1) & row(dy - 1.0f))));
-    }
-    template <class Step>
-    static void steps(const TileSplat& s, bool ellipse, const uint32_t* live, Step step) {
-        for (uint32_t m = reached(s, Ellipse(s, ellipse)); m; m &= m - 1) {
-            const int k = __builtin_ctz(m), py = s.row0 + 2 * (k % 8);
-            const bool second = py < s.row1;
-            if ((live[k / 8] >> py) & (second ? 3u : 1u))
-                step_at(s, k, [&](auto... a) { step(k, a...); });
-        }
-    }
-    template <class Step>
-    static void masked_steps(const TileSplat& s, uint64_t mask, Step step) {
+    [[gnu::always_inline]] static void masked_steps(const TileSplat& s, uint64_t mask, Step step) {
         for (; mask; mask &= mask - 1) step_at(s, __builtin_ctzll(mask), step);
     }
-    // Step k of s as step(p, centre, dy, valid).
+    // Step k of s as step(p, centre, dy, valid); dy a float for one row.
     template <class Step>
-    static void step_at(const TileSplat& s, int k, Step&& step) {
-        V::vf centre, row_offset;
-        V::vi upper;  // the lanes of the pair's first row
-        for (int l = 0; l < 16; ++l) {
-            centre[l] = float(l % 8) + 0.5f;
-            row_offset[l] = float(l / 8) + 0.5f;  // py + 1.5 == (py + 1) + 0.5 exactly
-            upper[l] = l < 8 ? -1 : 0;
+    [[gnu::always_inline]] static void step_at(const TileSplat& s, int k, Step&& step) {
+        typename V::vf centre, row_offset;
+        typename V::vi row;
+        for (int l = 0; l < C * R; ++l) {
+            centre[l] = float(l % C) + 0.5f;
+            row_offset[l] = float(l / C) + 0.5f;  // py + (r + 0.5) == (py + r) + 0.5 exactly
+            row[l] = l / C;
         }
-        const int h = k / 8, py = s.row0 + 2 * (k % 8);
-        const V::vf dy = s.y - (float(py) + row_offset);
-        step(at(8 * h, py), centre + float(8 * h), dy, py < s.row1 ? V::splat_i(-1) : upper);
+        const int b = k % kBlocks, py = s.row0 + R * (k / kBlocks);
+        const int p = at(C * b, py);
+        if constexpr (R == 1)
+            step(p, centre + float(C * b), s.y - (float(py) + 0.5f), V::splat_i(-1));
+        else
+            step(p, centre + float(C * b), s.y - (float(py) + row_offset), row <= s.row1 - py);
     }
 };
 
-// Compositing of a tile with the steps of Layout (RowSteps or PairSteps).
+// Compositing of a tile with the steps of Layout (a BlockSteps).
 template <class Layout>
 struct Raster {
     typedef typename Layout::V V;
@@ -337,12 +324,11 @@ struct Raster {
     // and, for the backward pass, the per-pixel final transmittance and contributor count
     // and each Gaussian's mask of the steps that composited a sample (step_mask[j], left
     // as it is for Gaussians after the tile turned opaque); lanes[0] = pixel lanes
-    // evaluated, lanes[1] = those that composited a sample. ellipse: skip the steps outside
-    // each Gaussian's ellipse (Ellipse), else take every step of its box.
-    static void composite_forward(const std::vector<TileSplat>& G, const TileFrame& f,
-                                  const float* background, bool ellipse, float* rgb, float* alpha,
-                                  float* depth, float* T_final, int32_t* last_out,
-                                  uint64_t* step_mask, int64_t* lanes) {
+    // evaluated, lanes[1] = those that composited a sample.
+    static void composite_forward(const TileSplat* G, int64_t n, const TileFrame& f,
+                                  const float* background, float* rgb, float* alpha, float* depth,
+                                  float* T_final, int32_t* last_out, uint64_t* step_mask,
+                                  int64_t* lanes) {
         alignas(64) float T[kSize], cr[kSize], cg[kSize], cb[kSize], cz[kSize];
         alignas(64) int32_t live[kSize], last[kSize];
         std::fill_n(T, kSize, 1.0f);
@@ -355,7 +341,6 @@ struct Raster {
         uint32_t live_rows[Layout::kGroups] = {};
         typename V::vi used{};
         int64_t steps = 0;
-        const int64_t n = int64_t(G.size());
         for (int64_t j = 0; j < n; ++j) {
             if (j % kLiveCheck == 0) {
                 Layout::live_rows(live, live_rows);
@@ -366,7 +351,7 @@ struct Raster {
             const TileSplat& s = G[j];
             const typename V::vi jj = V::splat_i(int32_t(j + 1));
             uint64_t mask = 0;
-            Layout::steps(s, ellipse, live_rows,
+            Layout::steps(s, live_rows,
                           [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
                               const typename V::vi use =
                                   V::forward_step(S, s, p, centre, dy, jj, valid);
@@ -397,7 +382,7 @@ struct Raster {
     // sample: transmittance is recovered by dividing out each alpha, and the gradient of
     // everything behind a sample is carried as one scalar per pixel. Writes the kEntryGrad
     // floats of the tile's j-th entry at entry_grad + slot[j] * kEntryGrad.
-    static void composite_backward(const std::vector<TileSplat>& G, const TileFrame& f,
+    static void composite_backward(const TileSplat* G, int64_t n, const TileFrame& f,
                                    const float* background, const float* g_rgb,
                                    const float* g_alpha, const float* g_depth, const float* T_final,
                                    const int32_t* last_in, const uint64_t* step_mask,
@@ -426,7 +411,7 @@ struct Raster {
         }
 
         const typename V::BackwardState S{T, behind, gr, gg, gb, gz, last};
-        for (int64_t j = int64_t(G.size()) - 1; j >= 0; --j) {
+        for (int64_t j = n - 1; j >= 0; --j) {
             float* e = entry_grad + slot[j] * kEntryGrad;
             if (!step_mask[j]) {
                 std::fill_n(e, kEntryGrad, 0.0f);

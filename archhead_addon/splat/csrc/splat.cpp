@@ -15,6 +15,7 @@
 #include <cstring>
 #include <exception>
 #include <memory>
+#include <mutex>
 #include <new>
 #include <vector>
 
@@ -87,9 +88,16 @@ struct Context {
     std::vector<float> means, log_scales, quats, logits, colors;
     Projected proj;
     Bins bins;
+    std::vector<Splat2D> splats;         // per Gaussian, input order
+    std::vector<TileSplat> tile_splats;  // per tile-list entry (bins.tile_ids)
     std::vector<float> T_final;
     std::vector<int32_t> last;
     std::vector<uint64_t> step_mask;  // per tile-list entry: its steps that drew a sample
+    // scratch of the passes, kept with the context for reuse (see acquire)
+    std::vector<double> depth64, acc;
+    std::vector<uint8_t> visible;
+    std::vector<int32_t> ids;
+    std::vector<float> entry_grad;
     // Wall-clock seconds of the phases, for the benchmark's split (ah_splat_stats).
     double t_project = 0, t_bin = 0, t_composite = 0, t_bwd_composite = 0, t_bwd_project = 0;
     int64_t lanes_evaluated = 0, lanes_used = 0;  // compositing's pixel lanes (forward)
@@ -98,9 +106,37 @@ struct Context {
         : params(p), cam(p), kernels(active_kernels()), ellipse(ellipse_steps()), n(n_) {}
 };
 
-template <typename T>
-std::vector<T> copy_of(const T* data, int64_t count) {
-    return count > 0 ? std::vector<T>(data, data + count) : std::vector<T>();
+// Released contexts are kept (up to kPooled) and reused by the next forward passes with
+// their buffers: fresh buffers of tens of MB are mapped page by page on first touch, which
+// costs about as much as compositing a small image.
+constexpr size_t kPooled = 2;
+std::mutex pool_mutex;
+std::vector<std::unique_ptr<Context>> pool;
+
+std::unique_ptr<Context> acquire(const ah_splat_params& p, int64_t n) {
+    std::unique_ptr<Context> C;
+    {
+        const std::lock_guard<std::mutex> lock(pool_mutex);
+        if (!pool.empty()) {
+            C = std::move(pool.back());
+            pool.pop_back();
+        }
+    }
+    if (!C) return std::make_unique<Context>(p, n);
+    C->params = p;
+    C->cam = Camera(p);
+    C->kernels = active_kernels();
+    C->ellipse = ellipse_steps();
+    C->n = n;
+    C->t_project = C->t_bin = C->t_composite = C->t_bwd_composite = C->t_bwd_project = 0;
+    C->lanes_evaluated = C->lanes_used = 0;
+    return C;
+}
+
+void release(Context* ctx) {
+    std::unique_ptr<Context> C(ctx);
+    const std::lock_guard<std::mutex> lock(pool_mutex);
+    if (pool.size() < kPooled) pool.push_back(std::move(C));
 }
 
 constexpr int64_t kProjectBlock = 256;  // Gaussians per parallel work item (a lane multiple)
@@ -117,6 +153,23 @@ void project_blocks(const Kernels& K, const Camera& cam, const Gaussians& g, int
         K.project_range(cam, g, b, std::min(b + kProjectBlock, n), out);
 }
 
+TileFrame frame_of(const Context& C, int64_t tile) {
+    return TileFrame{int(tile % C.bins.tiles_x) * kTile, int(tile / C.bins.tiles_x) * kTile,
+                     C.params.width, C.params.height};
+}
+
+// The tile lists' Gaussians as the tiles read them, once for the forward and the backward.
+void gather_tiles(Context& C) {
+    const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
+    C.tile_splats.resize(C.bins.tile_ids.size());
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
+    for (int64_t t = 0; t < n_tiles; ++t) {
+        const TileFrame f = frame_of(C, t);
+        for (int64_t p = C.bins.tile_start[t]; p < C.bins.tile_start[t + 1]; ++p)
+            C.tile_splats[p] = tile_splat(C.splats[C.bins.tile_ids[p]], f.ox, f.oy);
+    }
+}
+
 void project_all(Context& C) {
     const int64_t n = C.n;
     C.proj.mean2d.assign(2 * n, 0.0);
@@ -125,43 +178,34 @@ void project_all(Context& C) {
     C.proj.depth.assign(n, 0.0f);
     C.proj.bbox.assign(4 * n, 0);
     C.proj.q_max.assign(n, 0.0f);
-    std::vector<double> depth64(n, 0.0);
-    std::vector<uint8_t> visible(n, 0);
+    C.depth64.assign(n, 0.0);
+    C.visible.assign(n, 0);
     const double t0 = omp_get_wtime();
     const ProjectOut out{C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(),
-                         C.proj.depth.data(),  depth64.data(),      C.proj.bbox.data(),
-                         C.proj.q_max.data(),  visible.data(),      nullptr};
+                         C.proj.depth.data(),  C.depth64.data(),    C.proj.bbox.data(),
+                         C.proj.q_max.data(),  C.visible.data(),    nullptr};
     project_blocks(C.kernels, C.cam, inputs(C), n, out, thread_count(C.params));
+    splats_of(C.splats, C.proj, C.colors.data(), n, C.ellipse);
     const double t1 = omp_get_wtime();
     C.t_project = t1 - t0;
-    std::vector<int32_t> ids;
+    C.ids.clear();
     for (int64_t i = 0; i < n; ++i)
-        if (visible[i]) ids.push_back(int32_t(i));
-    bin_tiles(C.bins, sort_by_depth(ids, depth64), C.proj.bbox, C.params.width, C.params.height,
+        if (C.visible[i]) C.ids.push_back(int32_t(i));
+    bin_tiles(C.bins, sort_by_depth(C.ids, C.depth64), C.proj.bbox, C.params.width, C.params.height,
               thread_count(C.params));
+    gather_tiles(C);
     C.t_bin = omp_get_wtime() - t1;
 }
 
-TileFrame frame_of(const Context& C, int64_t tile) {
-    return TileFrame{int(tile % C.bins.tiles_x) * kTile, int(tile / C.bins.tiles_x) * kTile,
-                     C.params.width, C.params.height};
-}
-
-// Runs body(G, frame, first_entry, tile) for every tile in parallel, G holding the tile's splats
-// gathered front to back; dynamic scheduling because tiles differ widely in load.
+// Runs body(G, frame, first_entry, tile) for every tile in parallel, G holding the tile's
+// tile_splats, front to back; dynamic scheduling because tiles differ widely in load.
 template <class Body>
 void for_each_tile(Context& C, Body&& body) {
     const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
-#pragma omp parallel num_threads(thread_count(C.params))
-    {
-        std::vector<TileSplat> G;
-#pragma omp for schedule(dynamic, 1)
-        for (int64_t t = 0; t < n_tiles; ++t) {
-            const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
-            const TileFrame f = frame_of(C, t);
-            gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox, f.oy);
-            body(G, f, s, t);
-        }
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(dynamic, 1)
+    for (int64_t t = 0; t < n_tiles; ++t) {
+        const int64_t s = C.bins.tile_start[t];
+        body(&C.tile_splats[s], C.bins.tile_start[t + 1] - s, frame_of(C, t), s, t);
     }
 }
 
@@ -172,12 +216,11 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     C.step_mask.assign(C.bins.tile_ids.size(), 0);
     std::vector<int64_t> lanes(2 * (C.bins.tile_start.size() - 1));
     const double t0 = omp_get_wtime();
-    for_each_tile(C,
-                  [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t t) {
-                      C.kernels.composite_forward(G, f, C.params.background, C.ellipse, rgb, alpha,
-                                                  depth, C.T_final.data(), C.last.data(),
-                                                  &C.step_mask[s], &lanes[2 * t]);
-                  });
+    for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
+        C.kernels.composite_forward(G, n, f, C.params.background, rgb, alpha, depth,
+                                    C.T_final.data(), C.last.data(), &C.step_mask[s],
+                                    &lanes[2 * t]);
+    });
     C.t_composite = omp_get_wtime() - t0;
     for (size_t t = 0; t < lanes.size(); t += 2) {
         C.lanes_evaluated += lanes[t];
@@ -189,12 +232,12 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
               float* d_means, float* d_log_scales, float* d_quats, float* d_logits,
               float* d_colors) {
     const int64_t n = C.n;
-    std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
+    C.entry_grad.resize(C.bins.tile_ids.size() * kEntryGrad);  // every tile writes its entries
     const double t0 = omp_get_wtime();
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t) {
-        C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth,
+    for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t) {
+        C.kernels.composite_backward(G, n, f, C.params.background, g_rgb, g_alpha, g_depth,
                                      C.T_final.data(), C.last.data(), &C.step_mask[s],
-                                     &C.bins.slot_of[s], entry_grad.data());
+                                     &C.bins.slot_of[s], C.entry_grad.data());
     });
     const double t1 = omp_get_wtime();
     C.t_bwd_composite = t1 - t0;
@@ -208,7 +251,9 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     // projection is recomputed and differentiated L Gaussians at a time.
     const int64_t n_visible = int64_t(C.bins.sorted.size());
     const int threads = thread_count(C.params);
-    std::vector<double> acc(n_visible * kEntryGrad, 0.0);
+    std::vector<double>& acc = C.acc;
+    acc.assign(n_visible * kEntryGrad, 0.0);
+    const std::vector<float>& entry_grad = C.entry_grad;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int64_t k = 0; k < n_visible; ++k) {
         double* a = &acc[k * kEntryGrad];
@@ -281,12 +326,12 @@ void* ah_splat_forward(const ah_splat_params* params, int64_t n, const float* me
         return nullptr;
     }
     try {
-        auto C = std::make_unique<Context>(*params, n);
-        C->means = copy_of(means, 3 * n);
-        C->log_scales = copy_of(log_scales, 3 * n);
-        C->quats = copy_of(quats, 4 * n);
-        C->logits = copy_of(opacity_logits, n);
-        C->colors = copy_of(colors, 3 * n);
+        auto C = acquire(*params, n);
+        C->means.assign(means, means + 3 * n);
+        C->log_scales.assign(log_scales, log_scales + 3 * n);
+        C->quats.assign(quats, quats + 4 * n);
+        C->logits.assign(opacity_logits, opacity_logits + n);
+        C->colors.assign(colors, colors + 3 * n);
         project_all(*C);
         render(*C, out_rgb, out_alpha, out_depth);
         return C.release();
@@ -333,6 +378,6 @@ void ah_splat_stats(const void* ctx, int64_t* stats) {
     std::copy(out, out + AH_SPLAT_STATS_LEN, stats);
 }
 
-void ah_splat_release(void* ctx) { delete static_cast<Context*>(ctx); }
+void ah_splat_release(void* ctx) { release(static_cast<Context*>(ctx)); }
 
 }  // extern "C"
