@@ -1,11 +1,11 @@
 // Per-tile compositing, forward and backward. One thread owns a whole 16x16 tile and
 // walks its Gaussians in depth order; for each Gaussian it updates the pixels of the tile
-// that the Gaussian's ellipse reaches, 4 (4 x 1, baseline), 8 (4 x 2, AVX2) or 16 (4 columns x
-// 4 rows, AVX-512) at a time with GCC vector extensions (explicit, so the code vectorises
-// whatever the optimiser's heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once per instruction set
-// (dispatch.hpp picks one at run time); this file holds what they share. Every lane runs
-// the same float operations in the same order, so the images are bitwise identical across
-// the paths (gradients differ by the order of the lane sums only).
+// that the Gaussian's ellipse reaches, 4 (4 x 1, baseline), 8 (4 x 2, AVX2) or 16 (4 columns
+// x 4 rows, AVX-512) at a time with GCC vector extensions (explicit, so the code vectorises
+// whatever the optimiser's heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once
+// per instruction set (dispatch.hpp picks one at run time); this file holds what they share.
+// Every lane runs the same float operations in the same order, so the images are bitwise
+// identical across the paths (gradients differ by the order of the lane sums only).
 #pragma once
 
 #include <algorithm>
