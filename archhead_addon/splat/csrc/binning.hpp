@@ -76,6 +76,7 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
     const int64_t n = int64_t(sorted.size());
     B.sorted = std::move(sorted);
     auto tiles_of = [&](int64_t k, int& tx0, int& tx1, int& ty0, int& ty1) {
+        if (k + 16 < n) __builtin_prefetch(&bbox[4 * size_t(B.sorted[k + 16])]);  // random reads
         const int32_t* b = &bbox[4 * size_t(B.sorted[k])];
         tx0 = b[0] / kTile, tx1 = b[1] / kTile, ty0 = b[2] / kTile, ty1 = b[3] / kTile;
     };

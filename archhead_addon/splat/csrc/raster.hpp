@@ -80,8 +80,8 @@ inline Span span_of(double x, double y, const float* conic, float q_max, const i
         std::max(std::fabs(x - (bbox[0] - kTile + 0.5)), std::fabs(x - (bbox[1] + kTile + 0.5)));
     const double Y = std::max(std::fabs(y - (bbox[2] + 0.5)), std::fabs(y - (bbox[3] + 0.5)));
     const double terms = ca * X * X + 2.0 * std::fabs(cb) * X * Y + cc * Y * Y;
-    const Span s{float(cb / ca), float(cc - cb * cb / ca), float(1.0 / ca),
-                 float(q_max + 1e-5 * terms)};
+    const double inv_ca = 1.0 / ca, slope = cb * inv_ca;
+    const Span s{float(slope), float(cc - cb * slope), float(inv_ca), float(q_max + 1e-5 * terms)};
     const bool finite = std::isfinite(s.slope) && std::isfinite(s.g) && std::isfinite(s.inv_ca) &&
                         std::isfinite(s.q);
     if (ellipse && ca > 0.0 && finite) return s;

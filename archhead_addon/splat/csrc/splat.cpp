@@ -165,8 +165,11 @@ void gather_tiles(Context& C) {
 #pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
     for (int64_t t = 0; t < n_tiles; ++t) {
         const TileFrame f = frame_of(C, t);
-        for (int64_t p = C.bins.tile_start[t]; p < C.bins.tile_start[t + 1]; ++p)
+        const int64_t e = C.bins.tile_start[t + 1];
+        for (int64_t p = C.bins.tile_start[t]; p < e; ++p) {
+            if (p + 16 < e) __builtin_prefetch(&C.splats[C.bins.tile_ids[p + 16]]);  // random reads
             C.tile_splats[p] = tile_splat(C.splats[C.bins.tile_ids[p]], f.ox, f.oy);
+        }
     }
 }
 
