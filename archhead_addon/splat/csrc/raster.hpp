@@ -129,6 +129,18 @@ inline TileSplat tile_splat(const Splat2D& p, int ox, int oy) {
     return s;
 }
 
+// What the forward records for the backward, appended per tile: see
+// Raster::composite_forward. Grown, never shrunk, so that a reused context keeps its memory.
+struct StepRecords {
+    std::vector<float> data;
+    int64_t size = 0;
+    float* reserve(int64_t n) {  // room for n more values after size
+        if (size + n > int64_t(data.size()))
+            data.resize(std::max<int64_t>(2 * int64_t(data.size()), size + n));
+        return data.data() + size;
+    }
+};
+
 struct TileFrame {
     int ox, oy, width, height;  // tile origin in pixels, image size
 };

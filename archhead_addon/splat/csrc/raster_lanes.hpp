@@ -115,14 +115,14 @@ struct Lanes {
     // The tile's per-pixel state, rows of kTile pixels.
     struct ForwardState {
         float *T, *cr, *cg, *cb, *cz;
-        int32_t *last, *live;
+        int32_t* live;
     };
 
-    // Composites sample j (1-based count jj) of Gaussian s into the L pixels at p, those of
-    // them in `valid`; returns the lanes that composited it (-1) for the lane counts.
+    // Composites Gaussian s into the L pixels at p, those of them in `valid`; returns the
+    // lanes that composited it (-1), with their falloff in vis (0 in the other lanes).
     template <class DY>
     static vi forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre, DY dy,
-                           vi jj, vi valid) {
+                           vi valid, vf& vis) {
         const Falloff fo = falloff(s, centre, dy);
         const vi lv = load(S.live + p);
         const vf Tp = load(S.T + p);
@@ -136,8 +136,8 @@ struct Lanes {
         store(S.cb + p, load(S.cb + p) + w * s.b);
         store(S.cz + p, load(S.cz + p) + w * s.z);
         store(S.T + p, use ? nT : Tp);
-        store(S.last + p, use ? jj : load(S.last + p));
         store(S.live + p, lv & ~stop);
+        vis = use ? fo.vis : splat(0.0f);
         return use;
     }
 
@@ -150,7 +150,6 @@ struct Lanes {
     struct BackwardState {
         float *T, *behind;
         const float *gr, *gg, *gb, *gz;
-        const int32_t* last;
     };
 
     // Gradients of the falloff power p = -(ca dx^2 + 2 cb dx dy + cc dy^2) / 2 enter through
@@ -191,15 +190,15 @@ struct Lanes {
                __builtin_shufflevector(a, b, fold_lane(S, O, 1)...);
     }
 
-    // Un-composites sample j (index jj) of Gaussian s at the L pixels at p (those in
-    // `valid`), back to front.
+    // Un-composites Gaussian s at the L pixels at p, back to front, from the falloff vis
+    // that the forward recorded (0 where it composited nothing: the same lanes).
     template <class DY>
     static void backward_step(const BackwardState& S, Moments& M, const TileSplat& s, int p,
-                              vf centre, DY dy, vi jj, vi valid) {
-        const Falloff fo = falloff(s, centre, dy);
-        const vi ok = (jj < load(S.last + p)) & valid & fo.ok;  // (this order: GCC 12 keeps
-        // the masks in registers, the other moved fo.ok out bit by bit)
-        const vf a = ok ? fo.a : splat(0.0f);
+                              vf centre, DY dy, vf vis) {
+        const vi ok = vis > 0.0f;
+        const vf t = s.op * vis;
+        const vf a = t < kAlphaMax ? t : splat(kAlphaMax);  // the forward's alpha, 0 off ok
+        const vf dx = s.x - centre;
         const vf inv_one_minus = 1.0f / (1.0f - a);
         const vf Tj = load(S.T + p) * inv_one_minus;
         const vf pr = load(S.gr + p), pg = load(S.gg + p), pb = load(S.gb + p);
@@ -215,13 +214,13 @@ struct Lanes {
         M.d_b += pb * w;
         M.d_z += pz * w;
         // alpha = min(0.99, op * vis): no gradient through the clamp
-        const vf da = ok & (s.op * fo.vis <= kAlphaMax) ? d_alpha : splat(0.0f);
-        M.d_op += da * fo.vis;
-        const vf d_pow = da * fo.a;
-        const vf wx = d_pow * fo.dx, wy = d_pow * dy;
+        const vf da = (t <= kAlphaMax) & ok ? d_alpha : splat(0.0f);
+        M.d_op += da * vis;
+        const vf d_pow = da * a;
+        const vf wx = d_pow * dx, wy = d_pow * dy;
         M.m_x += wx;
         M.m_y += wy;
-        M.m_xx += wx * fo.dx;
+        M.m_xx += wx * dx;
         M.m_xy += wx * dy;
         M.m_yy += wy * dy;
     }
@@ -321,23 +320,23 @@ struct Raster {
     static constexpr int kSize = Layout::kSize;
 
     // Front-to-back compositing of one tile. Writes rgb/alpha/depth for the tile's pixels
-    // and, for the backward pass, the per-pixel final transmittance and contributor count
-    // and each Gaussian's mask of the steps that composited a sample (step_mask[j], left
-    // as it is for Gaussians after the tile turned opaque); lanes[0] = pixel lanes
-    // evaluated, lanes[1] = those that composited a sample.
+    // and, for the backward pass, the per-pixel final transmittance, each Gaussian's mask of
+    // the steps that composited a sample (step_mask[j], left as it is for Gaussians after
+    // the tile turned opaque) and, appended to records, the falloff of each such step's
+    // lanes (forward_step's vis); lanes[0] = pixel lanes evaluated, lanes[1] = those that
+    // composited a sample.
     static void composite_forward(const TileSplat* G, int64_t n, const TileFrame& f,
                                   const float* background, float* rgb, float* alpha, float* depth,
-                                  float* T_final, int32_t* last_out, uint64_t* step_mask,
+                                  float* T_final, uint64_t* step_mask, StepRecords& records,
                                   int64_t* lanes) {
         alignas(64) float T[kSize], cr[kSize], cg[kSize], cb[kSize], cz[kSize];
-        alignas(64) int32_t live[kSize], last[kSize];
+        alignas(64) int32_t live[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {cr, cg, cb, cz}) std::fill_n(c, kSize, 0.0f);
-        std::fill_n(last, kSize, 0);
         std::fill_n(live, kSize, 0);  // padding and pixels outside the image stay 0
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
             for (int px = 0; px < kTile && f.ox + px < f.width; ++px) live[Layout::at(px, py)] = -1;
-        const typename V::ForwardState S{T, cr, cg, cb, cz, last, live};
+        const typename V::ForwardState S{T, cr, cg, cb, cz, live};
         uint32_t live_rows[Layout::kGroups] = {};
         typename V::vi used{};
         int64_t steps = 0;
@@ -349,16 +348,22 @@ struct Raster {
                 if (!tile_live) break;
             }
             const TileSplat& s = G[j];
-            const typename V::vi jj = V::splat_i(int32_t(j + 1));
             uint64_t mask = 0;
+            float* out = records.reserve(64 * V::kWidth);  // 64 steps at most
             Layout::steps(s, live_rows,
                           [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
+                              typename V::vf vis;
                               const typename V::vi use =
-                                  V::forward_step(S, s, p, centre, dy, jj, valid);
+                                  V::forward_step(S, s, p, centre, dy, valid, vis);
                               used += use;
                               ++steps;
-                              mask |= uint64_t(V::any(use)) << k;
+                              if (V::any(use)) {
+                                  mask |= uint64_t(1) << k;
+                                  V::store(out, vis);
+                                  out += V::kWidth;
+                              }
                           });
+            records.size = out - records.data.data();
             step_mask[j] = mask;
         }
 
@@ -372,26 +377,24 @@ struct Raster {
                 alpha[o] = 1.0f - T[p];
                 depth[o] = cz[p];
                 T_final[o] = T[p];
-                last_out[o] = last[p];
             }
         lanes[0] = V::kWidth * steps;
         lanes[1] = V::count(used);
     }
 
     // Back-to-front pass over one tile, over the steps in which the forward composited a
-    // sample: transmittance is recovered by dividing out each alpha, and the gradient of
-    // everything behind a sample is carried as one scalar per pixel. Writes the kEntryGrad
-    // floats of the tile's j-th entry at entry_grad + slot[j] * kEntryGrad.
+    // sample, from their records (the forward's, from `records` on): transmittance is
+    // recovered by dividing out each alpha, and the gradient of everything behind a sample
+    // is carried as one scalar per pixel. Writes the kEntryGrad floats of the tile's j-th
+    // entry at entry_grad + slot[j] * kEntryGrad.
     static void composite_backward(const TileSplat* G, int64_t n, const TileFrame& f,
                                    const float* background, const float* g_rgb,
                                    const float* g_alpha, const float* g_depth, const float* T_final,
-                                   const int32_t* last_in, const uint64_t* step_mask,
+                                   const uint64_t* step_mask, const float* records,
                                    const int64_t* slot, float* entry_grad) {
         alignas(64) float T[kSize], behind[kSize], gr[kSize], gg[kSize], gb[kSize], gz[kSize];
-        alignas(64) int32_t last[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {behind, gr, gg, gb, gz}) std::fill_n(c, kSize, 0.0f);
-        std::fill_n(last, kSize, 0);  // no sample is drawn at padding or outside the image
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
             for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
                 const int p = Layout::at(px, py);
@@ -406,11 +409,12 @@ struct Raster {
                 behind[p] =
                     (gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2] - ga) *
                     T[p];
-                last[p] = last_in[o];
             }
         }
 
-        const typename V::BackwardState S{T, behind, gr, gg, gb, gz, last};
+        int64_t end = 0;  // the records after those of entry j
+        for (int64_t j = 0; j < n; ++j) end += V::kWidth * __builtin_popcountll(step_mask[j]);
+        const typename V::BackwardState S{T, behind, gr, gg, gb, gz};
         for (int64_t j = n - 1; j >= 0; --j) {
             float* e = entry_grad + slot[j] * kEntryGrad;
             if (!step_mask[j]) {
@@ -418,11 +422,13 @@ struct Raster {
                 continue;
             }
             const TileSplat& s = G[j];
-            const typename V::vi jj = V::splat_i(int32_t(j));
+            end -= V::kWidth * __builtin_popcountll(step_mask[j]);
+            const float* rec = records + end;
             typename V::Moments M;
             Layout::masked_steps(s, step_mask[j],
-                                 [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
-                                     V::backward_step(S, M, s, p, centre, dy, jj, valid);
+                                 [&](int p, typename V::vf centre, auto dy, typename V::vi) {
+                                     V::backward_step(S, M, s, p, centre, dy, V::load(rec));
+                                     rec += V::kWidth;
                                  });
             float m[kEntryGrad];
             M.sums(m);

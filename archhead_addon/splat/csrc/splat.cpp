@@ -91,7 +91,11 @@ struct Context {
     std::vector<Splat2D> splats;         // per Gaussian, input order
     std::vector<TileSplat> tile_splats;  // per tile-list entry (bins.tile_ids)
     std::vector<float> T_final;
-    std::vector<int32_t> last;
+    // per thread, the records of its tiles' steps (StepRecords); per tile, which thread's
+    // and from where
+    std::vector<StepRecords> records;
+    std::vector<int32_t> tile_thread;
+    std::vector<int64_t> tile_record;
     std::vector<uint64_t> step_mask;  // per tile-list entry: its steps that drew a sample
     // scratch of the passes, kept with the context for reuse (see acquire)
     std::vector<double> depth64, acc;
@@ -215,13 +219,20 @@ void for_each_tile(Context& C, Body&& body) {
 void render(Context& C, float* rgb, float* alpha, float* depth) {
     const int64_t pixels = int64_t(C.params.width) * C.params.height;
     C.T_final.assign(pixels, 1.0f);
-    C.last.assign(pixels, 0);
     C.step_mask.assign(C.bins.tile_ids.size(), 0);
-    std::vector<int64_t> lanes(2 * (C.bins.tile_start.size() - 1));
+    const int64_t n_tiles = int64_t(C.bins.tile_start.size()) - 1;
+    C.records.resize(thread_count(C.params));
+    for (StepRecords& r : C.records) r.size = 0;
+    C.tile_thread.resize(n_tiles);
+    C.tile_record.resize(n_tiles);
+    std::vector<int64_t> lanes(2 * n_tiles);
     const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
+        const int thread = omp_get_thread_num();
+        C.tile_thread[t] = thread;
+        C.tile_record[t] = C.records[thread].size;
         C.kernels.composite_forward(G, n, f, C.params.background, rgb, alpha, depth,
-                                    C.T_final.data(), C.last.data(), &C.step_mask[s],
+                                    C.T_final.data(), &C.step_mask[s], C.records[thread],
                                     &lanes[2 * t]);
     });
     C.t_composite = omp_get_wtime() - t0;
@@ -237,10 +248,11 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     const int64_t n = C.n;
     C.entry_grad.resize(C.bins.tile_ids.size() * kEntryGrad);  // every tile writes its entries
     const double t0 = omp_get_wtime();
-    for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t) {
+    for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
+        const float* records = C.records[C.tile_thread[t]].data.data() + C.tile_record[t];
         C.kernels.composite_backward(G, n, f, C.params.background, g_rgb, g_alpha, g_depth,
-                                     C.T_final.data(), C.last.data(), &C.step_mask[s],
-                                     &C.bins.slot_of[s], C.entry_grad.data());
+                                     C.T_final.data(), &C.step_mask[s], records, &C.bins.slot_of[s],
+                                     C.entry_grad.data());
     });
     const double t1 = omp_get_wtime();
     C.t_bwd_composite = t1 - t0;
