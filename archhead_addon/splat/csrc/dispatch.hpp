@@ -15,10 +15,11 @@ namespace ah {
 
 typedef void (*CompositeForwardFn)(const TileSplat*, int64_t, const TileFrame&, const float*,
                                    float*, float*, float*, float*, uint64_t*, StepRecords&,
-                                   int64_t*);
+                                   int64_t*, int64_t*);
 typedef void (*CompositeBackwardFn)(const TileSplat*, int64_t, const TileFrame&, const float*,
                                     const float*, const float*, const float*, const float*,
-                                    const uint64_t*, const float*, const int64_t*, float*);
+                                    const uint64_t*, const float*, const int64_t*, const int64_t*,
+                                    float*);
 
 typedef void (*ProjectRangeFn)(const Camera&, const Gaussians&, int64_t, int64_t,
                                const ProjectOut&);

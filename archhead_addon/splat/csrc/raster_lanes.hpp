@@ -39,6 +39,35 @@ struct Lanes {
         return b;
     }
     static bool any(vi m) { return bits(m) != 0; }
+
+    // A step's record at out, returning the end: vis (0 off use). AVX-512: the lanes of use
+    // only, after their mask (the record of a 3 lane step: 4 values, not 16); writes up to
+    // L + 1 values.
+    static float* pack(float* out, vi use, vf vis) {
+#ifdef __x86_64__
+        if constexpr (L == 16) {
+            const uint32_t m = bits(use);
+            std::memcpy(out, &m, sizeof m);
+            store(out + 1, (vf)_mm512_maskz_compress_ps(__mmask16(m), (__m512)vis));
+            return out + 1 + __builtin_popcount(m);
+        }
+#endif
+        store(out, vis);
+        return out + L;
+    }
+    // The vis of the record at rec (reads up to L + 1 values), returning the record's end.
+    static const float* unpack(const float* rec, vf& vis) {
+#ifdef __x86_64__
+        if constexpr (L == 16) {
+            uint32_t m;
+            std::memcpy(&m, rec, sizeof m);
+            vis = (vf)_mm512_maskz_expand_ps(__mmask16(m), (__m512)load(rec + 1));
+            return rec + 1 + __builtin_popcount(m);
+        }
+#endif
+        vis = load(rec);
+        return rec + L;
+    }
     static vf sqrt(vf x) {
 #ifdef __x86_64__
         if constexpr (L == 4) return (vf)_mm_sqrt_ps((__m128)x);
@@ -328,7 +357,7 @@ struct Raster {
     static void composite_forward(const TileSplat* G, int64_t n, const TileFrame& f,
                                   const float* background, float* rgb, float* alpha, float* depth,
                                   float* T_final, uint64_t* step_mask, StepRecords& records,
-                                  int64_t* lanes) {
+                                  int64_t* record_start, int64_t* lanes) {
         alignas(64) float T[kSize], cr[kSize], cg[kSize], cb[kSize], cz[kSize];
         alignas(64) int32_t live[kSize];
         std::fill_n(T, kSize, 1.0f);
@@ -349,7 +378,8 @@ struct Raster {
             }
             const TileSplat& s = G[j];
             uint64_t mask = 0;
-            float* out = records.reserve(64 * V::kWidth);  // 64 steps at most
+            float* out = records.reserve(64 * (V::kWidth + 1));  // 64 steps at most
+            record_start[j] = out - records.data.data();
             Layout::steps(s, live_rows,
                           [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
                               typename V::vf vis;
@@ -359,8 +389,7 @@ struct Raster {
                               ++steps;
                               if (V::any(use)) {
                                   mask |= uint64_t(1) << k;
-                                  V::store(out, vis);
-                                  out += V::kWidth;
+                                  out = V::pack(out, use, vis);
                               }
                           });
             records.size = out - records.data.data();
@@ -391,7 +420,8 @@ struct Raster {
                                    const float* background, const float* g_rgb,
                                    const float* g_alpha, const float* g_depth, const float* T_final,
                                    const uint64_t* step_mask, const float* records,
-                                   const int64_t* slot, float* entry_grad) {
+                                   const int64_t* record_start, const int64_t* slot,
+                                   float* entry_grad) {
         alignas(64) float T[kSize], behind[kSize], gr[kSize], gg[kSize], gb[kSize], gz[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {behind, gr, gg, gb, gz}) std::fill_n(c, kSize, 0.0f);
@@ -412,8 +442,6 @@ struct Raster {
             }
         }
 
-        int64_t end = 0;  // the records after those of entry j
-        for (int64_t j = 0; j < n; ++j) end += V::kWidth * __builtin_popcountll(step_mask[j]);
         const typename V::BackwardState S{T, behind, gr, gg, gb, gz};
         for (int64_t j = n - 1; j >= 0; --j) {
             float* e = entry_grad + slot[j] * kEntryGrad;
@@ -422,13 +450,13 @@ struct Raster {
                 continue;
             }
             const TileSplat& s = G[j];
-            end -= V::kWidth * __builtin_popcountll(step_mask[j]);
-            const float* rec = records + end;
+            const float* rec = records + record_start[j];
             typename V::Moments M;
             Layout::masked_steps(s, step_mask[j],
                                  [&](int p, typename V::vf centre, auto dy, typename V::vi) {
-                                     V::backward_step(S, M, s, p, centre, dy, V::load(rec));
-                                     rec += V::kWidth;
+                                     typename V::vf vis;
+                                     rec = V::unpack(rec, vis);
+                                     V::backward_step(S, M, s, p, centre, dy, vis);
                                  });
             float m[kEntryGrad];
             M.sums(m);

@@ -95,8 +95,8 @@ struct Context {
     // and from where
     std::vector<StepRecords> records;
     std::vector<int32_t> tile_thread;
-    std::vector<int64_t> tile_record;
-    std::vector<uint64_t> step_mask;  // per tile-list entry: its steps that drew a sample
+    std::vector<int64_t> record_start;  // per tile-list entry, in its thread's records
+    std::vector<uint64_t> step_mask;    // per tile-list entry: its steps that drew a sample
     // scratch of the passes, kept with the context for reuse (see acquire)
     std::vector<double> depth64, acc;
     std::vector<uint8_t> visible;
@@ -224,16 +224,15 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     C.records.resize(thread_count(C.params));
     for (StepRecords& r : C.records) r.size = 0;
     C.tile_thread.resize(n_tiles);
-    C.tile_record.resize(n_tiles);
+    C.record_start.resize(C.bins.tile_ids.size());
     std::vector<int64_t> lanes(2 * n_tiles);
     const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
         const int thread = omp_get_thread_num();
         C.tile_thread[t] = thread;
-        C.tile_record[t] = C.records[thread].size;
         C.kernels.composite_forward(G, n, f, C.params.background, rgb, alpha, depth,
                                     C.T_final.data(), &C.step_mask[s], C.records[thread],
-                                    &lanes[2 * t]);
+                                    &C.record_start[s], &lanes[2 * t]);
     });
     C.t_composite = omp_get_wtime() - t0;
     for (size_t t = 0; t < lanes.size(); t += 2) {
@@ -249,10 +248,10 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     C.entry_grad.resize(C.bins.tile_ids.size() * kEntryGrad);  // every tile writes its entries
     const double t0 = omp_get_wtime();
     for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
-        const float* records = C.records[C.tile_thread[t]].data.data() + C.tile_record[t];
         C.kernels.composite_backward(G, n, f, C.params.background, g_rgb, g_alpha, g_depth,
-                                     C.T_final.data(), &C.step_mask[s], records, &C.bins.slot_of[s],
-                                     C.entry_grad.data());
+                                     C.T_final.data(), &C.step_mask[s],
+                                     C.records[C.tile_thread[t]].data.data(), &C.record_start[s],
+                                     &C.bins.slot_of[s], C.entry_grad.data());
     });
     const double t1 = omp_get_wtime();
     C.t_bwd_composite = t1 - t0;
