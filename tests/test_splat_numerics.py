@@ -315,6 +315,17 @@ def test_non_finite_or_invalid_camera_rejected():
         render(g, width=0)
 
 
+def test_forward_without_backward_state():
+    scene = scenes.face_scene(2000, width=48, height=40, seed=3)
+    g, settings = scene.gaussians.checked(), scene.settings()
+    full, _ = kernel.forward(g, settings)
+    image, ctx = kernel.forward(g, settings, for_backward=False)
+    for a, b in zip(full, image, strict=True):
+        assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="for_backward"):
+        kernel.backward(ctx, np.ones((40, 48, 3)))
+
+
 def test_same_result_for_any_thread_count(monkeypatch):
     monkeypatch.setattr(thread_counts, "machine_cores", lambda: 3)  # 3 threads even on 2 cores
     scene = scenes.face_scene(4000, width=96, height=80, seed=2)

@@ -14,7 +14,7 @@
 namespace ah {
 
 typedef void (*CompositeForwardFn)(const TileSplat*, int64_t, const TileFrame&, const float*,
-                                   float*, float*, float*, float*, uint64_t*, StepRecords&,
+                                   float*, float*, float*, float*, uint64_t*, StepRecords*,
                                    int64_t*, int64_t*);
 typedef void (*CompositeBackwardFn)(const TileSplat*, int64_t, const TileFrame&, const float*,
                                     const float*, const float*, const float*, const float*,

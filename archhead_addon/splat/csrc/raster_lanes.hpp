@@ -351,12 +351,12 @@ struct Raster {
     // Front-to-back compositing of one tile. Writes rgb/alpha/depth for the tile's pixels
     // and, for the backward pass, the per-pixel final transmittance, each Gaussian's mask of
     // the steps that composited a sample (step_mask[j], left as it is for Gaussians after
-    // the tile turned opaque) and, appended to records, the falloff of each such step's
-    // lanes (forward_step's vis); lanes[0] = pixel lanes evaluated, lanes[1] = those that
-    // composited a sample.
+    // the tile turned opaque) and, appended to records (unless null), the falloff of each
+    // such step's lanes (forward_step's vis); lanes[0] = pixel lanes evaluated, lanes[1] = those
+    // that composited a sample.
     static void composite_forward(const TileSplat* G, int64_t n, const TileFrame& f,
                                   const float* background, float* rgb, float* alpha, float* depth,
-                                  float* T_final, uint64_t* step_mask, StepRecords& records,
+                                  float* T_final, uint64_t* step_mask, StepRecords* records,
                                   int64_t* record_start, int64_t* lanes) {
         alignas(64) float T[kSize], cr[kSize], cg[kSize], cb[kSize], cz[kSize];
         alignas(64) int32_t live[kSize];
@@ -378,8 +378,11 @@ struct Raster {
             }
             const TileSplat& s = G[j];
             uint64_t mask = 0;
-            float* out = records.reserve(64 * (V::kWidth + 1));  // 64 steps at most
-            record_start[j] = out - records.data.data();
+            float* out = nullptr;  // where the entry's records go, if kept
+            if (records) {
+                out = records->reserve(64 * (V::kWidth + 1));  // 64 steps at most
+                record_start[j] = out - records->data.data();
+            }
             Layout::steps(s, live_rows,
                           [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
                               typename V::vf vis;
@@ -389,10 +392,10 @@ struct Raster {
                               ++steps;
                               if (V::any(use)) {
                                   mask |= uint64_t(1) << k;
-                                  out = V::pack(out, use, vis);
+                                  if (out) out = V::pack(out, use, vis);
                               }
                           });
-            records.size = out - records.data.data();
+            if (records) records->size = out - records->data.data();
             step_mask[j] = mask;
         }
 

@@ -84,6 +84,7 @@ struct Context {
     Camera cam;
     Kernels kernels;  // the forward's, so that its backward runs the same lanes
     bool ellipse;     // the forward skipped the steps outside each Gaussian's ellipse
+    bool recorded;    // the forward kept its step records (params.for_backward)
     int64_t n;
     std::vector<float> means, log_scales, quats, logits, colors;
     Projected proj;
@@ -107,7 +108,12 @@ struct Context {
     int64_t lanes_evaluated = 0, lanes_used = 0;  // compositing's pixel lanes (forward)
 
     Context(const ah_splat_params& p, int64_t n_)
-        : params(p), cam(p), kernels(active_kernels()), ellipse(ellipse_steps()), n(n_) {}
+        : params(p),
+          cam(p),
+          kernels(active_kernels()),
+          ellipse(ellipse_steps()),
+          recorded(p.for_backward != 0),
+          n(n_) {}
 };
 
 // Released contexts are kept (up to kPooled) and reused by the next forward passes with
@@ -131,6 +137,7 @@ std::unique_ptr<Context> acquire(const ah_splat_params& p, int64_t n) {
     C->cam = Camera(p);
     C->kernels = active_kernels();
     C->ellipse = ellipse_steps();
+    C->recorded = p.for_backward != 0;
     C->n = n;
     C->t_project = C->t_bin = C->t_composite = C->t_bwd_composite = C->t_bwd_project = 0;
     C->lanes_evaluated = C->lanes_used = 0;
@@ -230,9 +237,9 @@ void render(Context& C, float* rgb, float* alpha, float* depth) {
     for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
         const int thread = omp_get_thread_num();
         C.tile_thread[t] = thread;
-        C.kernels.composite_forward(G, n, f, C.params.background, rgb, alpha, depth,
-                                    C.T_final.data(), &C.step_mask[s], C.records[thread],
-                                    &C.record_start[s], &lanes[2 * t]);
+        C.kernels.composite_forward(
+            G, n, f, C.params.background, rgb, alpha, depth, C.T_final.data(), &C.step_mask[s],
+            C.recorded ? &C.records[thread] : nullptr, &C.record_start[s], &lanes[2 * t]);
     });
     C.t_composite = omp_get_wtime() - t0;
     for (size_t t = 0; t < lanes.size(); t += 2) {
@@ -362,6 +369,10 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
                       float* d_colors, char* err, int32_t err_len) {
     if (!ctx || !g_rgb) {
         set_error(err, err_len, "splat backward needs a forward context and g_rgb");
+        return -1;
+    }
+    if (!static_cast<Context*>(ctx)->recorded) {
+        set_error(err, err_len, "splat backward needs a forward run with for_backward = 1");
         return -1;
     }
     try {
