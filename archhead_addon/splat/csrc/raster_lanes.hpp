@@ -272,6 +272,7 @@ struct BlockSteps {
     static constexpr int kRows = kTile + R - 1;
     static constexpr int kBlock = C * kRows;
     static constexpr int kBlocks = kTile / C;
+    static constexpr int kColumns = C;
     static constexpr int kSize = kBlocks * kBlock;
     static constexpr int kGroups = kBlocks;  // live-row masks (bit py), one per block
     static_assert(kBlocks * ((kTile + R - 1) / R) <= 64, "step masks have 64 bits");
@@ -399,10 +400,29 @@ struct Raster {
             step_mask[j] = mask;
         }
 
-        for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
-            for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
+        // out, a block's row (4 contiguous pixels) at a time where the tile's row holds it
+        typedef Lanes<4> H;
+        static_assert(Layout::kColumns == 4, "block rows of 4 pixels");
+        const int cols = std::min(kTile, f.width - f.ox);
+        for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
+            const int64_t row = int64_t(f.oy + py) * f.width + f.ox;
+            int px = 0;
+            for (; px + 4 <= cols; px += 4) {
                 const int p = Layout::at(px, py);
-                const int64_t o = int64_t(f.oy + py) * f.width + (f.ox + px);
+                const typename H::vf t = H::load(T + p);
+                const typename H::vf r = H::load(cr + p) + t * background[0];
+                const typename H::vf g = H::load(cg + p) + t * background[1];
+                const typename H::vf b = H::load(cb + p) + t * background[2];
+                H::store(alpha + row + px, 1.0f - t);
+                H::store(depth + row + px, H::load(cz + p));
+                H::store(T_final + row + px, t);
+                float* o = rgb + 3 * (row + px);
+                for (int i = 0; i < 4; ++i)
+                    o[3 * i] = r[i], o[3 * i + 1] = g[i], o[3 * i + 2] = b[i];
+            }
+            for (; px < cols; ++px) {
+                const int p = Layout::at(px, py);
+                const int64_t o = row + px;
                 rgb[3 * o] = cr[p] + T[p] * background[0];
                 rgb[3 * o + 1] = cg[p] + T[p] * background[1];
                 rgb[3 * o + 2] = cb[p] + T[p] * background[2];
@@ -410,6 +430,7 @@ struct Raster {
                 depth[o] = cz[p];
                 T_final[o] = T[p];
             }
+        }
         lanes[0] = V::kWidth * steps;
         lanes[1] = V::count(used);
     }
