@@ -119,7 +119,7 @@ struct Context {
 // Released contexts are kept (up to kPooled) and reused by the next forward passes with
 // their buffers: fresh buffers of tens of MB are mapped page by page on first touch, which
 // costs about as much as compositing a small image.
-constexpr size_t kPooled = 2;
+constexpr size_t kPooled = 1;
 std::mutex pool_mutex;
 std::vector<std::unique_ptr<Context>> pool;
 
