@@ -311,8 +311,8 @@ struct BlockSteps {
             // the blocks of the box whose centres C b + 0.5 .. C b + C - 0.5 meet [l, h]
             const float first = (l - (C - 0.5f)) / C, last = (h - 0.5f) / C;
             int b0 = s.col0 / C, b1 = s.col1 / C;
-            if (first > b0) b0 = first > b1 ? b1 + 1 : int(std::ceil(first));
-            if (last < b1) b1 = last < b0 ? b0 - 1 : int(std::floor(last));
+            if (first > b0) b0 = first > b1 ? b1 + 1 : int(first) + (int(first) < first);  // ceil
+            if (last < b1) b1 = last < b0 ? b0 - 1 : int(last);  // floor: 0 <= last < b1 here
             const uint32_t band_rows = ((1u << rows) - 1) << py;
             for (int b = b0; b <= b1; ++b) {
                 const int k = band * kBlocks + b;
