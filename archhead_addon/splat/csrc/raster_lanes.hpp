@@ -449,17 +449,39 @@ struct Raster {
         alignas(64) float T[kSize], behind[kSize], gr[kSize], gg[kSize], gb[kSize], gz[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {behind, gr, gg, gb, gz}) std::fill_n(c, kSize, 0.0f);
+        // in, a block's row (4 contiguous pixels) at a time where the tile's row holds it
+        typedef Lanes<4> H;
+        const int cols = std::min(kTile, f.width - f.ox);
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
-            for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
+            const int64_t row = int64_t(f.oy + py) * f.width + f.ox;
+            int px = 0;
+            for (; px + 4 <= cols; px += 4) {
                 const int p = Layout::at(px, py);
-                const int64_t o = int64_t(f.oy + py) * f.width + (f.ox + px);
+                const int64_t o = row + px;
+                typename H::vf r, g, b;
+                for (int i = 0; i < 4; ++i)
+                    r[i] = g_rgb[3 * (o + i)], g[i] = g_rgb[3 * (o + i) + 1],
+                    b[i] = g_rgb[3 * (o + i) + 2];
+                const typename H::vf ga = g_alpha ? H::load(g_alpha + o) : H::splat(0.0f);
+                const typename H::vf t = H::load(T_final + o);
+                H::store(gr + p, r);
+                H::store(gg + p, g);
+                H::store(gb + p, b);
+                H::store(gz + p, g_depth ? H::load(g_depth + o) : H::splat(0.0f));
+                H::store(T + p, t);
+                // rgb = ... + T bg and alpha = 1 - T: dL/dT_final, times T_final.
+                H::store(behind + p,
+                         (r * background[0] + g * background[1] + b * background[2] - ga) * t);
+            }
+            for (; px < cols; ++px) {
+                const int p = Layout::at(px, py);
+                const int64_t o = row + px;
                 gr[p] = g_rgb[3 * o];
                 gg[p] = g_rgb[3 * o + 1];
                 gb[p] = g_rgb[3 * o + 2];
                 gz[p] = g_depth ? g_depth[o] : 0.0f;
                 const float ga = g_alpha ? g_alpha[o] : 0.0f;
                 T[p] = T_final[o];
-                // rgb = ... + T bg and alpha = 1 - T: dL/dT_final, times T_final.
                 behind[p] =
                     (gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2] - ga) *
                     T[p];
