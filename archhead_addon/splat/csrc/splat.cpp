@@ -99,7 +99,7 @@ struct Context {
     std::vector<int64_t> record_start;  // per tile-list entry, in its thread's records
     std::vector<uint64_t> step_mask;    // per tile-list entry: its steps that drew a sample
     // scratch of the passes, kept with the context for reuse (see acquire)
-    std::vector<double> depth64, acc;
+    std::vector<double> depth64;
     std::vector<uint8_t> visible;
     std::vector<int32_t> ids;
     std::vector<float> entry_grad;
@@ -274,28 +274,27 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     std::memset(d_logits, 0, sizeof(float) * n);
     std::memset(d_colors, 0, sizeof(float) * 3 * n);
     // Each visible Gaussian sums its own tile records (contiguous, in tile order), then its
-    // projection is recomputed and differentiated L Gaussians at a time.
+    // projection is recomputed and differentiated L Gaussians at a time, block by block (the
+    // block's sums stay in cache).
     const int64_t n_visible = int64_t(C.bins.sorted.size());
-    const int threads = thread_count(C.params);
-    std::vector<double>& acc = C.acc;
-    acc.assign(n_visible * kEntryGrad, 0.0);
-    const std::vector<float>& entry_grad = C.entry_grad;
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int64_t k = 0; k < n_visible; ++k) {
-        double* a = &acc[k * kEntryGrad];
-        for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
-            const float* e = &entry_grad[q * kEntryGrad];
-            for (int c = 0; c < kEntryGrad; ++c) a[c] += e[c];
-        }
-        const int32_t i = C.bins.sorted[k];
-        for (int c = 0; c < 3; ++c) d_colors[3 * i + c] = saturate(a[6 + c]);
-    }
     const GradOut out{d_means, d_log_scales, d_quats, d_logits};
     const Gaussians g = inputs(C);
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int64_t b = 0; b < n_visible; b += kProjectBlock)
-        C.kernels.vjp_range(C.cam, g, C.bins.sorted.data(), acc.data(), b,
-                            std::min(b + kProjectBlock, n_visible), out);
+    const std::vector<float>& entry_grad = C.entry_grad;
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
+    for (int64_t b = 0; b < n_visible; b += kProjectBlock) {
+        const int64_t e = std::min(b + kProjectBlock, n_visible);
+        double acc[kProjectBlock * kEntryGrad] = {};
+        for (int64_t k = b; k < e; ++k) {
+            double* a = &acc[(k - b) * kEntryGrad];
+            for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
+                const float* r = &entry_grad[q * kEntryGrad];
+                for (int c = 0; c < kEntryGrad; ++c) a[c] += r[c];
+            }
+            const int32_t i = C.bins.sorted[k];
+            for (int c = 0; c < 3; ++c) d_colors[3 * i + c] = saturate(a[6 + c]);
+        }
+        C.kernels.vjp_range(C.cam, g, C.bins.sorted.data(), acc, b, e, out);
+    }
     C.t_bwd_project = omp_get_wtime() - t1;
 }
 
