@@ -308,7 +308,7 @@ def forward(
     g: SplatFrame, settings: RasterSettings, for_backward: bool = True
 ) -> tuple[Raster, ForwardContext]:
     """The image of a checked frame (`SplatFrame.checked()`, RGB in sh) and the state its
-    backward pass needs (for_backward=False: the image alone, about 10 % faster; `backward`
+    backward pass needs (for_backward=False: the image alone, about 5 % faster; `backward`
     then raises ValueError)."""
     n = _require_checked(g)
     lib = library()

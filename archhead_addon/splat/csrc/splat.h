@@ -35,7 +35,7 @@ typedef struct {
     float background[3];
     int32_t num_threads;  // <= 0: OpenMP default
     // ah_splat_forward: 1 to keep what ah_splat_backward needs (the falloff of the
-    // composited steps: about 10 % of the forward's time), 0 for an image alone (its context
+    // composited steps: about 5 % of the forward's time), 0 for an image alone (its context
     // then refuses a backward). ah_splat_project ignores it.
     int32_t for_backward;
 } ah_splat_params;
