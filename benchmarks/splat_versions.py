@@ -7,7 +7,8 @@ the best of --repeats forward and backward passes (wall clock around the call):
   `git show` into a temporary folder;
 - this tree's kernel on each compositing path the CPU runs (kernel.set_simd), with its
   phase split (stats(): projection, sort and binning, compositing; backward compositing,
-  backward per-Gaussian reduction and projection VJP);
+  backward per-Gaussian reduction and projection VJP), and its forward on the best path for
+  an image alone (`for_backward=False`, without the records the backward reads);
 - OpenSplat's CPU rasterizer (`rasterizer/gsplat-cpu`, single-threaded), when --opensplat
   (or $ARCHHEAD_OPENSPLAT) names a checkout of github.com/pierotofy/OpenSplat: compiled here
   as a torch extension from that folder (AGPL, never copied into this repository), fed this
@@ -15,11 +16,12 @@ the best of --repeats forward and backward passes (wall clock around the call):
   forward and backward only, so its projection and projection VJP are free;
 and ratios to this tree's best path, all from this run.
 
-Vector limit: the forward compositing loop's pixel-lane rate (lanes evaluated per second)
-on ideal data, where every lane evaluated composites a sample (`ideal_scene`: large
-low-opacity Gaussians covering the whole image). On the real scene the benchmark prints
-the lanes used (that composited a sample) per second of compositing as a share of that
-limit, and the share of evaluated lanes that were used.
+Vector limit: the forward compositing loop's pixel-lane rate (lanes evaluated per second,
+in forwards for an image alone: the loop without the backward's records) on ideal data,
+where every lane evaluated composites a sample (`ideal_scene`: large low-opacity Gaussians
+covering the whole image). On the real scene the benchmark prints the lanes used (that
+composited a sample) per second of compositing as a share of that limit, and the share of
+evaluated lanes that were used.
 """
 
 from __future__ import annotations
@@ -64,6 +66,16 @@ class Current:
         ctx = out[0][1]
         bwd = once_ms(lambda: kernel.backward(ctx, self.g_rgb))
         return {"fwd": fwd, "bwd": bwd, **ctx.stats()}
+
+
+class ImageOnly(Current):
+    """This tree's forward for an image alone (`for_backward=False`: no step records)."""
+
+    def sample(self) -> dict:
+        kernel.set_simd(self.simd)
+        out = []
+        fwd = once_ms(lambda: out.append(kernel.forward(self.g, self.settings, False)))
+        return {"fwd": fwd, **out[0][1].stats()}
 
 
 class Before:
@@ -234,6 +246,7 @@ def report(args) -> str:
             samplers[f"before ({args.before})"] = Before(args.before, Path(tmp), scene)
         for name in paths:
             samplers[f"now, {name}"] = Current(scene, name)
+        samplers[f"now, {paths[-1]}, image only"] = ImageOnly(scene, paths[-1])
         checkout = args.opensplat or os.environ.get("ARCHHEAD_OPENSPLAT")
         note = "OpenSplat: skipped (no --opensplat checkout)"
         if checkout and (Path(checkout) / "rasterizer" / "gsplat-cpu").is_dir():
@@ -256,10 +269,11 @@ def report(args) -> str:
         "|" + "---|" * 10,
     ]
     for label, r in rows.items():
-        split = [f"{r[k]:.1f}" if k in r else "" for k in PHASES]
+        split = [f"{r[k]:.1f}" if k in r and r[k] else "" for k in PHASES]
+        bwd = (f"{r['bwd']:.1f}", f"{r['bwd'] / rows[best]['bwd']:.2f}") if "bwd" in r else ("", "")
         lines.append(
-            f"| {label} | {r['fwd']:.1f} | {r['bwd']:.1f} | {r['fwd'] / rows[best]['fwd']:.2f} "
-            f"| {r['bwd'] / rows[best]['bwd']:.2f} | " + " | ".join(split) + " |"
+            f"| {label} | {r['fwd']:.1f} | {bwd[0]} | {r['fwd'] / rows[best]['fwd']:.2f} "
+            f"| {bwd[1]} | " + " | ".join(split) + " |"
         )
     return "\n".join([*lines, "", lanes])
 
@@ -269,8 +283,8 @@ def lane_table(scene: scenes.Scene, paths: list[str], repeats: int) -> str:
     ideal = ideal_scene(scene.width, scene.height)
     samplers = {}
     for name in paths:
-        samplers[("ideal", name)] = Current(ideal, name)
-        samplers[("real", name)] = Current(scene, name)
+        samplers[("ideal", name)] = ImageOnly(ideal, name)
+        samplers[("real", name)] = ImageOnly(scene, name)
     best = interleaved(samplers, repeats)
     rate = lambda r, key: r[key] / (r["composite_ms"] * 1e-3)  # noqa: E731
     out = ["| path | limit: lanes/s on ideal data | evaluated lanes/s | used lanes/s "

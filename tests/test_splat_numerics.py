@@ -135,6 +135,18 @@ def test_pixel_stops_below_transmittance_1e_4():
     assert_matches_reference(g, 5, 5, camera())
 
 
+def test_depth_order_finer_than_float32():
+    # Depths 3 - 1e-8 and 3 + 1.1e-7 round to the same float32: still front to back.
+    viewmat, K = camera()
+    viewmat[2, 3] = 2.0 - 1e-8
+    front, back = (0.0, 0.0, 1.0), (0.0, 0.0, float(np.nextafter(np.float32(1), np.float32(2))))
+    red, green = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
+    for means, colors in (([front, back], [red, green]), ([back, front], [green, red])):
+        g = gaussians(means, log_scales=np.log(0.5), colors=colors)  # opacity 0.5 each
+        (rgb, _, _), _ = render(g, cam=(viewmat, K))
+        np.testing.assert_allclose(rgb[2, 2], [0.5, 0.25, 0.0], atol=1e-6)
+
+
 def test_near_and_far_planes_cull():
     cam = camera(width=8, height=1)
     # pixels 0..3 left to right at depths 0.45 | 0.55 | 1.95 | 2.05, each on its pixel centre
@@ -301,6 +313,17 @@ def test_non_finite_or_invalid_camera_rejected():
         render(g, near_plane=0.0)
     with pytest.raises(ValueError, match="width"):
         render(g, width=0)
+
+
+def test_forward_without_backward_state():
+    scene = scenes.face_scene(2000, width=48, height=40, seed=3)
+    g, settings = scene.gaussians.checked(), scene.settings()
+    full, _ = kernel.forward(g, settings)
+    image, ctx = kernel.forward(g, settings, for_backward=False)
+    for a, b in zip(full, image, strict=True):
+        assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="for_backward"):
+        kernel.backward(ctx, np.ones((40, 48, 3)))
 
 
 def test_same_result_for_any_thread_count(monkeypatch):

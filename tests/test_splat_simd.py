@@ -4,6 +4,7 @@ the reference renderer, images and gradients, and the paths' images against each
 import os
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -82,3 +83,51 @@ def test_environment_variable_forces_a_path():
     env = {**os.environ, kernel.SIMD_ENV: "baseline"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert out.stdout.strip() == "baseline", out.stderr
+
+
+def thin_faint_scene(n, width, height, seed):
+    """random_scene with needle-thin and very elongated Gaussians at every angle, some far
+    longer than the image, opacities from just above 1/255 to nearly opaque: the cases where
+    an ellipse's bounds could drop a lane that composites."""
+    scene = scenes.random_scene(n, width, height, seed=seed)
+    rng = np.random.default_rng(seed)
+    g = scene.gaussians
+    log_scales = g.log_scales.copy()
+    log_scales[:, 0] += rng.choice([0.0, 2.0, 4.0, 7.0], n)  # up to 1000x longer
+    log_scales[:, 1] -= rng.choice([0.0, 3.0, 8.0], n)  # down to the 0.3 px² dilation
+    opacity = rng.choice([1 / 254, 1 / 200, 0.02, 0.5, 0.999], n)
+    logits = np.log(opacity / (1 - opacity)) + rng.normal(0, 1e-3, n)
+    frame = replace(g, log_scales=log_scales, opacity_logits=logits)
+    return scene._replace(gaussians=frame.map(lambda a: np.asarray(a, np.float32)))
+
+
+def ellipse_and_box(scene, seed):
+    """Images, gradients and stats() with the ellipse's steps, then with the box's."""
+    h, w = scene.height, scene.width
+    rng = np.random.default_rng(seed)
+    grads_out = (rng.normal(size=(h, w, 3)), rng.normal(size=(h, w)), rng.normal(size=(h, w)))
+    results = []
+    for ellipse in (True, False):
+        kernel.set_ellipse_steps(ellipse)
+        try:
+            raster, ctx = kernel.forward(scene.gaussians.checked(), scene.settings())
+        finally:
+            kernel.set_ellipse_steps(True)
+        grads = kernel.backward(ctx, *grads_out).arrays().values()
+        results.append(([*raster, *grads], ctx.stats()))
+    return results
+
+
+@pytest.mark.parametrize("make_scene", [
+    lambda seed: thin_faint_scene(300, 48, 40, seed),
+    lambda seed: scenes.face_scene(2000, 64, 56, seed=seed),
+])  # fmt: skip
+@pytest.mark.parametrize("seed", range(3))
+def test_ellipse_steps_give_the_box_results(simd, make_scene, seed):
+    """Skipping the steps outside each ellipse leaves images and gradients bitwise equal
+    and composites every sample the whole box did, with fewer lanes evaluated."""
+    (ours, ours_stats), (box, box_stats) = ellipse_and_box(make_scene(seed), seed)
+    for a, b in zip(ours, box, strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert ours_stats["lanes_used"] == box_stats["lanes_used"] > 0
+    assert ours_stats["lanes_evaluated"] < box_stats["lanes_evaluated"]

@@ -13,11 +13,13 @@
 
 namespace ah {
 
-typedef void (*CompositeForwardFn)(const std::vector<TileSplat>&, const TileFrame&, const float*,
-                                   float*, float*, float*, float*, int32_t*, int64_t*);
-typedef void (*CompositeBackwardFn)(const std::vector<TileSplat>&, const TileFrame&, const float*,
+typedef void (*CompositeForwardFn)(const TileSplat*, int64_t, const TileFrame&, const float*,
+                                   float*, float*, float*, float*, uint64_t*, StepRecords*,
+                                   int64_t*, int64_t*);
+typedef void (*CompositeBackwardFn)(const TileSplat*, int64_t, const TileFrame&, const float*,
                                     const float*, const float*, const float*, const float*,
-                                    const int32_t*, const int64_t*, float*);
+                                    const uint64_t*, const float*, const int64_t*, const int64_t*,
+                                    float*);
 
 typedef void (*ProjectRangeFn)(const Camera&, const Gaussians&, int64_t, int64_t,
                                const ProjectOut&);
@@ -84,18 +86,18 @@ inline Kernels kernels_for(int32_t isa) {
 #ifdef AH_X86_DISPATCH
         case AH_ISA_AVX512:
             return {isa, avx512::ProjectLanes<8>::project_range, avx512::ProjectLanes<8>::vjp_range,
-                    avx512::Raster<avx512::PairSteps>::composite_forward,
-                    avx512::Raster<avx512::PairSteps>::composite_backward};
+                    avx512::Raster<avx512::BlockSteps<4, 4>>::composite_forward,
+                    avx512::Raster<avx512::BlockSteps<4, 4>>::composite_backward};
         case AH_ISA_AVX2:
             return {isa, avx2::ProjectLanes<4>::project_range, avx2::ProjectLanes<4>::vjp_range,
-                    avx2::Raster<avx2::RowSteps<8>>::composite_forward,
-                    avx2::Raster<avx2::RowSteps<8>>::composite_backward};
+                    avx2::Raster<avx2::BlockSteps<4, 2>>::composite_forward,
+                    avx2::Raster<avx2::BlockSteps<4, 2>>::composite_backward};
 #endif
         default:
             return {AH_ISA_BASELINE, baseline::ProjectLanes<2>::project_range,
                     baseline::ProjectLanes<2>::vjp_range,
-                    baseline::Raster<baseline::RowSteps<4>>::composite_forward,
-                    baseline::Raster<baseline::RowSteps<4>>::composite_backward};
+                    baseline::Raster<baseline::BlockSteps<4, 1>>::composite_forward,
+                    baseline::Raster<baseline::BlockSteps<4, 1>>::composite_backward};
     }
 }
 

@@ -57,6 +57,7 @@ struct Camera {
 struct Bounds {
     double radius[2];
     int32_t bbox[4];  // inclusive pixel ranges x0, x1, y0, y1
+    double q_max;     // the ellipse: samples with q = d^T conic d above it are never drawn
 };
 
 // What the screen bounds read of a projection: mean, dilated covariance diagonal, opacity.
@@ -95,6 +96,7 @@ struct ProjectOut {
     float *conic, *opacity, *depth;
     double* depth64;
     int32_t* bbox;
+    float* q_max;
     uint8_t* visible;
     int32_t* radii;
 };
@@ -112,7 +114,8 @@ inline bool screen_bounds(const Camera& cam, const Footprint& P, Bounds& B) {
     // Opacity-aware extent: opacity * exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 opacity); the
     // tight axis-aligned box of that ellipse has half-widths k sqrt(covd_xx), k sqrt(covd_yy).
     // The small margin keeps samples that pass the float32 threshold test inside the box.
-    const double k = std::sqrt(2.0 * std::log(255.0 * P.opacity) + 1e-3);
+    B.q_max = 2.0 * std::log(255.0 * P.opacity) + 1e-3;
+    const double k = std::sqrt(B.q_max);
     B.radius[0] = k * std::sqrt(P.covd_xx);
     B.radius[1] = k * std::sqrt(P.covd_yy);
     // Pixel i has its centre at i + 0.5: i in [ceil(m - r - 0.5), floor(m + r - 0.5)].

@@ -313,6 +313,7 @@ struct ProjectLanes {
                 out.depth[i] = float(P.tc[2][l]);
                 out.depth64[i] = P.tc[2][l];
                 for (int k = 0; k < 4; ++k) out.bbox[4 * i + k] = B.bbox[k];
+                out.q_max[i] = float(B.q_max);
                 if (out.radii)
                     for (int k = 0; k < 2; ++k)
                         out.radii[2 * i + k] = int32_t(std::ceil(B.radius[k]));
@@ -321,7 +322,7 @@ struct ProjectLanes {
     }
 
     // Input gradients of the visible Gaussians ids[k0 .. k1), given acc (kEntryGrad summed
-    // rasteriser gradients per k, in entry order); colours are the caller's.
+    // rasteriser gradients per k, in entry order, from k0's on); colours are the caller's.
     static void vjp_range(const Camera& cam, const Gaussians& g, const int32_t* ids,
                           const double* acc, int64_t k0, int64_t k1, const GradOut& out) {
         for (int64_t b = k0; b < k1; b += L) {
@@ -334,7 +335,7 @@ struct ProjectLanes {
             }
             Grad gr;
             for (int l = 0; l < L; ++l) {
-                const double* a = acc + ks[l] * kEntryGrad;
+                const double* a = acc + (ks[l] - k0) * kEntryGrad;
                 gr.mean2d[0][l] = a[0];
                 gr.mean2d[1][l] = a[1];
                 for (int c = 0; c < 3; ++c) gr.conic[c][l] = a[2 + c];

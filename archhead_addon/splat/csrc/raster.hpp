@@ -1,30 +1,51 @@
 // Per-tile compositing, forward and backward. One thread owns a whole 16x16 tile and
 // walks its Gaussians in depth order; for each Gaussian it updates the pixels of the tile
-// that the Gaussian's box covers, 8 (one row, AVX2) or 16 (8 columns x 2 rows, AVX-512) at a
-// time with GCC vector extensions (explicit, so the code vectorises whatever the optimiser's
-// heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once per instruction set
-// (dispatch.hpp picks one at run time); this file holds what they share. Every lane runs
-// the same float operations in the same order, so the images are bitwise identical across
-// the paths (gradients differ by the order of the lane sums only).
+// that the Gaussian's ellipse reaches, 4 (4 x 1, baseline), 8 (4 x 2, AVX2) or 16 (4 columns
+// x 4 rows, AVX-512) at a time with GCC vector extensions (explicit, so the code vectorises
+// whatever the optimiser's heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once
+// per instruction set (dispatch.hpp picks one at run time); this file holds what they share.
+// Every lane runs the same float operations in the same order, so the images are bitwise
+// identical across the paths (gradients differ by the order of the lane sums only).
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
+#include <utility>
 #include <vector>
 
 #include "binning.hpp"
 #include "projection.hpp"
 
+#ifdef __x86_64__
+#include <immintrin.h>  // movemasks (raster_lanes.hpp), each used under its target only
+#endif
+
 namespace ah {
 
 constexpr int kTilePixels = kTile * kTile;
 
+// Where a Gaussian can pass the alpha test, row by row, so that the compositing skips the
+// steps outside its ellipse. With d = (x_mean - x, dy), q = d^T conic d is smallest over x
+// at x = x_mean + slope dy, and q <= q_max holds within sqrt(w2) of there, w2 = (q - g dy^2)
+// inv_ca. Conservative: q is q_max raised by far more than the float32 round-off of the
+// falloff's power at any lane a step evaluates (relative to the size of its terms), and
+// the spans (Lanes::row_spans) are kSpanMargin wider, so a step skipped holds no lane that
+// the alpha test would pass: images and gradients equal those of the whole box. The box's
+// span (whole rows): slope = g = 0, inv_ca = 1, q = inf.
+struct Span {
+    float slope, g, inv_ca, q;
+};
+constexpr float kSpanMargin = 1.0f;  // pixels
+
 // A Gaussian as one tile reads it: 2D mean relative to the tile origin (small numbers keep
-// the float32 offsets accurate), conic, opacity, colour, depth, and the rows and columns of
-// the tile its box covers.
+// the float32 offsets accurate), conic, opacity, colour, depth, its Span, and the rows and
+// columns of the tile its box covers.
 struct TileSplat {
     float x, y, ca, cb, cc, op, r, g, b, z;
+    Span span;
     int32_t row0, row1, col0, col1;
 };
 
@@ -35,30 +56,90 @@ struct Projected {
     std::vector<float> opacity;
     std::vector<float> depth;
     std::vector<int32_t> bbox;  // 4: x0, x1, y0, y1 inclusive
+    std::vector<float> q_max;
 };
 
-inline void gather_tile(std::vector<TileSplat>& out, const Projected& P, const float* colors,
-                        const int32_t* ids, int64_t n, int ox, int oy) {
+// A Gaussian as the tiles read it (from Projected and the colours), one record each, in
+// input order (which keeps a tile's Gaussians close in memory where the input is ordered
+// by position, as a UV-parameterised avatar's is).
+struct Splat2D {
+    double x, y;
+    float ca, cb, cc, op, r, g, b, z;
+    Span span;
+    int32_t bbox[4];
+};
+
+// The Span of a Gaussian with mean (x, y), conic and box bbox; the box's where `ellipse` is
+// off or a coefficient is not finite.
+inline Span span_of(double x, double y, const float* conic, float q_max, const int32_t* bbox,
+                    bool ellipse) {
+    const double ca = conic[0], cb = conic[1], cc = conic[2];
+    // the largest |dx|, |dy| at any lane a step evaluates: its rows are the box's, its
+    // columns at most a tile past the box's
+    const double X =
+        std::max(std::fabs(x - (bbox[0] - kTile + 0.5)), std::fabs(x - (bbox[1] + kTile + 0.5)));
+    const double Y = std::max(std::fabs(y - (bbox[2] + 0.5)), std::fabs(y - (bbox[3] + 0.5)));
+    const double terms = ca * X * X + 2.0 * std::fabs(cb) * X * Y + cc * Y * Y;
+    const double inv_ca = 1.0 / ca, slope = cb * inv_ca;
+    const Span s{float(slope), float(cc - cb * slope), float(inv_ca), float(q_max + 1e-5 * terms)};
+    const bool finite = std::isfinite(s.slope) && std::isfinite(s.g) && std::isfinite(s.inv_ca) &&
+                        std::isfinite(s.q);
+    if (ellipse && ca > 0.0 && finite) return s;
+    return Span{0.0f, 0.0f, 1.0f, std::numeric_limits<float>::infinity()};
+}
+
+// The records of Gaussians [0, n) (culled ones too: their records are never read).
+inline void splats_of(std::vector<Splat2D>& out, const Projected& P, const float* colors, int64_t n,
+                      bool ellipse) {
     out.resize(n);
-    for (int64_t j = 0; j < n; ++j) {
-        const int32_t id = ids[j];
-        TileSplat& s = out[j];
-        s.x = float(P.mean2d[2 * id] - ox);
-        s.y = float(P.mean2d[2 * id + 1] - oy);
-        s.ca = P.conic[3 * id];
-        s.cb = P.conic[3 * id + 1];
-        s.cc = P.conic[3 * id + 2];
+    for (int64_t id = 0; id < n; ++id) {
+        const double x = P.mean2d[2 * id], y = P.mean2d[2 * id + 1];
+        const float* conic = &P.conic[3 * id];
+        const float* rgb = &colors[3 * id];
+        const int32_t* bbox = &P.bbox[4 * id];
+        Splat2D& s = out[id];
+        s.x = x, s.y = y;
+        s.ca = conic[0], s.cb = conic[1], s.cc = conic[2];
         s.op = P.opacity[id];
-        s.r = colors[3 * id];
-        s.g = colors[3 * id + 1];
-        s.b = colors[3 * id + 2];
+        s.r = rgb[0], s.g = rgb[1], s.b = rgb[2];
         s.z = P.depth[id];
-        s.col0 = std::max(P.bbox[4 * id] - ox, 0);
-        s.col1 = std::min(P.bbox[4 * id + 1] - ox, kTile - 1);
-        s.row0 = std::max(P.bbox[4 * id + 2] - oy, 0);
-        s.row1 = std::min(P.bbox[4 * id + 3] - oy, kTile - 1);
+        s.span = span_of(x, y, conic, P.q_max[id], bbox, ellipse);
+        std::copy_n(bbox, 4, s.bbox);
     }
 }
+
+// Gaussian p relative to the origin (ox, oy) of a tile, as the tile reads it.
+inline TileSplat tile_splat(const Splat2D& p, int ox, int oy) {
+    TileSplat s;
+    s.x = float(p.x - ox);
+    s.y = float(p.y - oy);
+    s.ca = p.ca;
+    s.cb = p.cb;
+    s.cc = p.cc;
+    s.op = p.op;
+    s.r = p.r;
+    s.g = p.g;
+    s.b = p.b;
+    s.z = p.z;
+    s.span = p.span;
+    s.col0 = std::max(p.bbox[0] - ox, 0);
+    s.col1 = std::min(p.bbox[1] - ox, kTile - 1);
+    s.row0 = std::max(p.bbox[2] - oy, 0);
+    s.row1 = std::min(p.bbox[3] - oy, kTile - 1);
+    return s;
+}
+
+// What the forward records for the backward, appended per tile: see
+// Raster::composite_forward. Grown, never shrunk, so that a reused context keeps its memory.
+struct StepRecords {
+    std::vector<float> data;
+    int64_t size = 0;
+    float* reserve(int64_t n) {  // room for n more values after size
+        if (size + n > int64_t(data.size()))
+            data.resize(std::max<int64_t>(2 * int64_t(data.size()), size + n));
+        return data.data() + size;
+    }
+};
 
 struct TileFrame {
     int ox, oy, width, height;  // tile origin in pixels, image size

@@ -26,16 +26,58 @@ struct Lanes {
     }
     static void store(float* p, vf v) { std::memcpy(p, &v, sizeof v); }
     static void store(int32_t* p, vi v) { std::memcpy(p, &v, sizeof v); }
-    static float lane_sum(vf v) {
-        float s = 0.0f;
-        for (int i = 0; i < L; ++i) s += v[i];
-        return s;
+    // Bit i: lane i of the mask m (0 or -1) is set; a movemask where the target has one
+    // (GCC's generic code moves the lanes out one by one).
+    static uint32_t bits(vi m) {
+#ifdef __x86_64__
+        if constexpr (L == 4) return uint32_t(_mm_movemask_ps((__m128)m));
+        if constexpr (L == 8) return uint32_t(_mm256_movemask_ps((__m256)m));
+        if constexpr (L == 16) return uint32_t(_mm512_movepi32_mask((__m512i)m));
+#endif
+        uint32_t b = 0;
+        for (int i = 0; i < L; ++i) b |= uint32_t(m[i] & 1) << i;
+        return b;
     }
-    static bool any(vi m) {
-        int32_t s = 0;
-        for (int i = 0; i < L; ++i) s |= m[i];
-        return s != 0;
+    static bool any(vi m) { return bits(m) != 0; }
+
+    // A step's record at out, returning the end: vis (0 off use). AVX-512: the lanes of use
+    // only, after their mask (the record of a 3 lane step: 4 values, not 16); writes up to
+    // L + 1 values.
+    static float* pack(float* out, vi use, vf vis) {
+#ifdef __x86_64__
+        if constexpr (L == 16) {
+            const uint32_t m = bits(use);
+            std::memcpy(out, &m, sizeof m);
+            store(out + 1, (vf)_mm512_maskz_compress_ps(__mmask16(m), (__m512)vis));
+            return out + 1 + __builtin_popcount(m);
+        }
+#endif
+        store(out, vis);
+        return out + L;
     }
+    // The vis of the record at rec (reads up to L + 1 values), returning the record's end.
+    static const float* unpack(const float* rec, vf& vis) {
+#ifdef __x86_64__
+        if constexpr (L == 16) {
+            uint32_t m;
+            std::memcpy(&m, rec, sizeof m);
+            vis = (vf)_mm512_maskz_expand_ps(__mmask16(m), (__m512)load(rec + 1));
+            return rec + 1 + __builtin_popcount(m);
+        }
+#endif
+        vis = load(rec);
+        return rec + L;
+    }
+    static vf sqrt(vf x) {
+#ifdef __x86_64__
+        if constexpr (L == 4) return (vf)_mm_sqrt_ps((__m128)x);
+        if constexpr (L == 8) return (vf)_mm256_sqrt_ps((__m256)x);
+        if constexpr (L == 16) return (vf)_mm512_mask_sqrt_ps((__m512)x, 0xffff, (__m512)x);
+#endif
+        for (int i = 0; i < L; ++i) x[i] = std::sqrt(x[i]);
+        return x;
+    }
+    static vf max(vf a, vf b) { return a > b ? a : b; }
 
     // exp for the Gaussian falloff (Cephes expf polynomial, about 1 ulp, exp(0) == 1
     // exactly). NaN and large |x| map to the clamp bounds.
@@ -76,24 +118,40 @@ struct Lanes {
         return f;
     }
 
-    // Pixel centres of columns first .. first + L - 1 (exact: small integers and halves).
+    // Pixel centres of columns (or rows) first .. first + L - 1 (exact: small integers and
+    // halves).
     static vf lane_centres(int first) {
         vf c;
         for (int i = 0; i < L; ++i) c[i] = float(first + i) + 0.5f;
         return c;
     }
 
+    // For each tile row py, the pixel centres [lo[py], hi[py]] (tile coordinates; lo > hi:
+    // none) where s may pass the alpha test (Span).
+    static void row_spans(const TileSplat& s, float* lo, float* hi) {
+        constexpr float inf = std::numeric_limits<float>::infinity();
+        const Span& e = s.span;
+        for (int r = 0; r < kTile; r += L) {
+            const vf dy = s.y - lane_centres(r);
+            const vf c = s.x + e.slope * dy, w2 = (e.q - e.g * dy * dy) * e.inv_ca;
+            const vf w = sqrt(max(w2, splat(0.0f))) + kSpanMargin;
+            const vf l = c - w, h = c + w;  // NaN only as inf - inf: the whole row
+            store(lo + r, w2 < 0.0f ? splat(inf) : (l == l ? l : splat(-inf)));
+            store(hi + r, w2 < 0.0f ? splat(-inf) : (h == h ? h : splat(inf)));
+        }
+    }
+
     // The tile's per-pixel state, rows of kTile pixels.
     struct ForwardState {
         float *T, *cr, *cg, *cb, *cz;
-        int32_t *last, *live;
+        int32_t* live;
     };
 
-    // Composites sample j (1-based count jj) of Gaussian s into the L pixels at p, those of
-    // them in `valid`; returns the lanes that composited it (-1) for the lane counts.
+    // Composites Gaussian s into the L pixels at p, those of them in `valid`; returns the
+    // lanes that composited it (-1), with their falloff in vis (0 in the other lanes).
     template <class DY>
     static vi forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre, DY dy,
-                           vi jj, vi valid) {
+                           vi valid, vf& vis) {
         const Falloff fo = falloff(s, centre, dy);
         const vi lv = load(S.live + p);
         const vf Tp = load(S.T + p);
@@ -107,8 +165,8 @@ struct Lanes {
         store(S.cb + p, load(S.cb + p) + w * s.b);
         store(S.cz + p, load(S.cz + p) + w * s.z);
         store(S.T + p, use ? nT : Tp);
-        store(S.last + p, use ? jj : load(S.last + p));
         store(S.live + p, lv & ~stop);
+        vis = use ? fo.vis : splat(0.0f);
         return use;
     }
 
@@ -121,7 +179,6 @@ struct Lanes {
     struct BackwardState {
         float *T, *behind;
         const float *gr, *gg, *gb, *gz;
-        const int32_t* last;
     };
 
     // Gradients of the falloff power p = -(ca dx^2 + 2 cb dx dy + cc dy^2) / 2 enter through
@@ -129,22 +186,48 @@ struct Lanes {
     struct Moments {
         vf m_x{}, m_y{}, m_xx{}, m_xy{}, m_yy{}, d_op{}, d_r{}, d_g{}, d_b{}, d_z{};
 
-        // Lane sums added to sums: m_x, m_y, m_xx, m_xy, m_yy, d_op, d_r, d_g, d_b, d_z.
-        void add_to(float* sums) const {
-            const vf* v[kEntryGrad] = {&m_x,  &m_y, &m_xx, &m_xy, &m_yy,
-                                       &d_op, &d_r, &d_g,  &d_b,  &d_z};
-            for (int c = 0; c < kEntryGrad; ++c) sums[c] += lane_sum(*v[c]);
+        // Lane sums: m_x, m_y, m_xx, m_xy, m_yy, d_op, d_r, d_g, d_b, d_z.
+        void sums(float* out) const {
+            vf v[kEntryGrad] = {m_x, m_y, m_xx, m_xy, m_yy, d_op, d_r, d_g, d_b, d_z};
+            reduce<L>(v, kEntryGrad);
+            for (int c = 0; c < kEntryGrad; ++c) out[c] = v[c / L][c % L];
         }
     };
 
-    // Un-composites sample j (index jj) of Gaussian s at the L pixels at p (those in
-    // `valid`), back to front.
+    // The lane sums of many vectors together, a transpose-like tree: while each of the n
+    // vectors' sums is spread over segments of S lanes, one fold adds the segments' halves of
+    // two vectors and packs the results into one vector, halving S and n. Ends with the sums
+    // in lane order, L to a vector.
+    template <int S>
+    static void reduce(vf* v, int n) {
+        if constexpr (S > 1) {
+            for (int i = 0; i < n; i += 2)
+                v[i / 2] = fold<S>(v[i], i + 1 < n ? v[i + 1] : vf{},
+                                   std::make_integer_sequence<int, L>());
+            reduce<S / 2>(v, (n + 1) / 2);
+        }
+    }
+    // Output lane o takes, from a (first half) or b, segment o / (S/2) of its half's vector:
+    // its lane o % (S/2) plus the lane S/2 above.
+    static constexpr int fold_lane(int S, int o, int upper) {
+        const int h = S / 2, in = o % (L / 2);
+        return (o < L / 2 ? 0 : L) + in / h * S + in % h + upper * h;
+    }
+    template <int S, int... O>
+    static vf fold(vf a, vf b, std::integer_sequence<int, O...>) {
+        return __builtin_shufflevector(a, b, fold_lane(S, O, 0)...) +
+               __builtin_shufflevector(a, b, fold_lane(S, O, 1)...);
+    }
+
+    // Un-composites Gaussian s at the L pixels at p, back to front, from the falloff vis
+    // that the forward recorded (0 where it composited nothing: the same lanes).
     template <class DY>
     static void backward_step(const BackwardState& S, Moments& M, const TileSplat& s, int p,
-                              vf centre, DY dy, vi jj, vi valid) {
-        const Falloff fo = falloff(s, centre, dy);
-        const vi ok = fo.ok & (jj < load(S.last + p)) & valid;
-        const vf a = ok ? fo.a : splat(0.0f);
+                              vf centre, DY dy, vf vis) {
+        const vi ok = vis > 0.0f;
+        const vf t = s.op * vis;
+        const vf a = t < kAlphaMax ? t : splat(kAlphaMax);  // the forward's alpha, 0 off ok
+        const vf dx = s.x - centre;
         const vf inv_one_minus = 1.0f / (1.0f - a);
         const vf Tj = load(S.T + p) * inv_one_minus;
         const vf pr = load(S.gr + p), pg = load(S.gg + p), pb = load(S.gb + p);
@@ -160,195 +243,269 @@ struct Lanes {
         M.d_b += pb * w;
         M.d_z += pz * w;
         // alpha = min(0.99, op * vis): no gradient through the clamp
-        const vf da = ok & (s.op * fo.vis <= kAlphaMax) ? d_alpha : splat(0.0f);
-        M.d_op += da * fo.vis;
-        const vf d_pow = da * fo.a;
-        const vf wx = d_pow * fo.dx, wy = d_pow * dy;
+        const vf da = (t <= kAlphaMax) & ok ? d_alpha : splat(0.0f);
+        M.d_op += da * vis;
+        const vf d_pow = da * a;
+        const vf wx = d_pow * dx, wy = d_pow * dy;
         M.m_x += wx;
         M.m_y += wy;
-        M.m_xx += wx * fo.dx;
+        M.m_xx += wx * dx;
         M.m_xy += wx * dy;
         M.m_yy += wy * dy;
     }
 };
 
-// Row-major tile state, one chunk of L pixels of one row per step (AVX2: 8; baseline: 4,
-// as SSE2 has no 8-lane compares and GCC would split them into scalar code).
-template <int L>
-struct RowSteps {
-    typedef Lanes<L> V;
-    static constexpr int kSize = kTilePixels;
-    static int at(int px, int py) { return py * kTile + px; }
-    static bool row_any(const int32_t* mask, int py) {
-        typename V::vi row{};
-        for (int h = 0; h < kTile / L; ++h) row |= V::load(mask + at(L * h, py));
-        return V::any(row);
+// The step layout: the tile stored block by block, C columns x (kTile + R - 1) rows each
+// (R - 1 rows of padding), so that R consecutive rows of a block are C R contiguous values
+// and one step of L = C R lanes covers C columns x R rows starting at any row. A Gaussian
+// takes the steps of the blocks its box reaches in bands of R rows from its first row:
+// step k = band kBlocks + b (bit k of a 64-bit step mask). `steps` runs the forward's (those
+// the Gaussian's ellipse reaches, with a live pixel) as step(k, p, centre, dy, valid), and
+// `masked_steps` those of a mask in the same order as step(p, centre, dy, valid): the
+// backward's, where the forward composited a sample (exactly the lanes it un-composites).
+// AVX-512: 4 x 4 (about 15 % fewer steps on faces than 8 x 2, as small Gaussians leave
+// less of a narrower block unused); AVX2: 4 x 2; baseline: 4 x 1, as SSE2 has no 8-lane
+// compares and GCC would split them into scalar code.
+template <int C, int R>
+struct BlockSteps {
+    typedef Lanes<C * R> V;
+    static constexpr int kRows = kTile + R - 1;
+    static constexpr int kBlock = C * kRows;
+    static constexpr int kBlocks = kTile / C;
+    static constexpr int kColumns = C;
+    static constexpr int kSize = kBlocks * kBlock;
+    static constexpr int kGroups = kBlocks;  // live-row masks (bit py), one per block
+    static_assert(kBlocks * ((kTile + R - 1) / R) <= 64, "step masks have 64 bits");
+    static int at(int px, int py) { return (px / C) * kBlock + py * C + px % C; }
+    // Bit py of rows[b]: a pixel of row py of block b is live. From the lane bits of a
+    // block's first kTile rows (bit C py + x), folding each row's C bits into one.
+    static void live_rows(const int32_t* live, uint32_t* rows) {
+        if constexpr (C != 4) {
+            for (int b = 0; b < kBlocks; ++b) {
+                rows[b] = 0;
+                for (int py = 0; py < kTile; ++py)
+                    rows[b] |= uint32_t(Lanes<C>::any(Lanes<C>::load(live + at(C * b, py)))) << py;
+            }
+            return;
+        }
+        for (int b = 0; b < kBlocks; ++b) {
+            uint64_t m = 0;
+            for (int i = 0; i < C * kTile / V::kWidth; ++i)
+                m |= uint64_t(V::bits(V::load(live + at(C * b, 0) + V::kWidth * i)))
+                     << (V::kWidth * i);
+            m = (m | m >> 1 | m >> 2 | m >> 3) & 0x1111111111111111u;  // row py: bit 4 py
+            m = (m | m >> 3) & 0x0303030303030303u;
+            m = (m | m >> 6) & 0x000f000f000f000fu;
+            m = (m | m >> 12) & 0x000000ff000000ffu;
+            rows[b] = uint32_t((m | m >> 24) & 0xffffu);
+        }
     }
-    // step(p, centre, dy, valid) for each step of s's box in the rows with active(py). Steps
-    // start at multiples of 4 columns (a box's span rounded to 4 pixels, not L), shifted
-    // back to stay inside the row, with the columns an earlier step covered masked off.
-    template <class Active, class Step>
-    static void steps(const TileSplat& s, Active active, Step step) {
-        typename V::vi lane;
-        for (int i = 0; i < L; ++i) lane[i] = i;
-        for (int py = s.row0; py <= s.row1; ++py) {
-            if (!active(py)) continue;
-            const float dy = s.y - (float(py) + 0.5f);
-            for (int col = s.col0 & ~3; col <= s.col1;) {
-                const int start = std::min(col, kTile - L);
-                step(at(start, py), V::lane_centres(start), dy, lane >= col - start);
-                col = start + L;
+    template <class Step>
+    [[gnu::always_inline]] static void steps(const TileSplat& s, const uint32_t* live, Step step) {
+        alignas(64) float lo[kTile], hi[kTile];
+        V::row_spans(s, lo, hi);
+        for (int band = 0, py = s.row0; py <= s.row1; ++band, py += R) {
+            const int rows = std::min(R, s.row1 - py + 1);
+            float l = lo[py], h = hi[py];
+            for (int r = 1; r < rows; ++r) l = std::min(l, lo[py + r]), h = std::max(h, hi[py + r]);
+            // the blocks of the box whose centres C b + 0.5 .. C b + C - 0.5 meet [l, h]
+            const float first = (l - (C - 0.5f)) / C, last = (h - 0.5f) / C;
+            int b0 = s.col0 / C, b1 = s.col1 / C;
+            if (first > b0) b0 = first > b1 ? b1 + 1 : int(first) + (int(first) < first);  // ceil
+            if (last < b1) b1 = last < b0 ? b0 - 1 : int(last);  // floor: 0 <= last < b1 here
+            const uint32_t band_rows = ((1u << rows) - 1) << py;
+            for (int b = b0; b <= b1; ++b) {
+                const int k = band * kBlocks + b;
+                if (live[b] & band_rows) step_at(s, k, [&](auto... a) { step(k, a...); });
             }
         }
     }
-};
-
-// Tile state stored half by half (8 columns x 16 rows, then a padding row), so that two
-// rows of one half are 16 contiguous values: one 16-lane step covers 8 columns x 2 rows,
-// and a Gaussian takes ceil(rows / 2) steps per half its box reaches (AVX-512). (Pairs
-// aligned to even rows evaluate more lanes and measured no faster.)
-struct PairSteps {
-    typedef Lanes<16> V;
-    static constexpr int kHalf = 8 * (kTile + 1);
-    static constexpr int kSize = 2 * kHalf;
-    static int at(int px, int py) { return (px / 8) * kHalf + py * 8 + px % 8; }
-    static bool row_any(const int32_t* mask, int py) {
-        typedef Lanes<8> H;
-        return H::any(H::load(mask + at(0, py)) | H::load(mask + at(8, py)));
+    template <class Step>
+    [[gnu::always_inline]] static void masked_steps(const TileSplat& s, uint64_t mask, Step step) {
+        for (; mask; mask &= mask - 1) step_at(s, __builtin_ctzll(mask), step);
     }
-    template <class Active, class Step>
-    static void steps(const TileSplat& s, Active active, Step step) {
-        V::vf centre[2], row_offset;
-        V::vi upper;  // the lanes of the pair's first row
-        for (int i = 0; i < 16; ++i) {
-            centre[0][i] = float(i % 8) + 0.5f;
-            centre[1][i] = float(8 + i % 8) + 0.5f;
-            row_offset[i] = float(i / 8) + 0.5f;  // py + 1.5 == (py + 1) + 0.5 exactly
-            upper[i] = i < 8 ? -1 : 0;
+    // Step k of s as step(p, centre, dy, valid); dy a float for one row.
+    template <class Step>
+    [[gnu::always_inline]] static void step_at(const TileSplat& s, int k, Step&& step) {
+        typename V::vf centre, row_offset;
+        typename V::vi row;
+        for (int l = 0; l < C * R; ++l) {
+            centre[l] = float(l % C) + 0.5f;
+            row_offset[l] = float(l / C) + 0.5f;  // py + (r + 0.5) == (py + r) + 0.5 exactly
+            row[l] = l / C;
         }
-        const V::vi both = V::splat_i(-1);
-        for (int h = s.col0 / 8; h <= s.col1 / 8; ++h)
-            for (int py = s.row0; py <= s.row1; py += 2) {
-                const bool second = py < s.row1;
-                if (!active(py) && !(second && active(py + 1))) continue;
-                const V::vf dy = s.y - (float(py) + row_offset);
-                step(at(8 * h, py), centre[h], dy, second ? both : upper);
-            }
+        const int b = k % kBlocks, py = s.row0 + R * (k / kBlocks);
+        const int p = at(C * b, py);
+        if constexpr (R == 1)
+            step(p, centre + float(C * b), s.y - (float(py) + 0.5f), V::splat_i(-1));
+        else
+            step(p, centre + float(C * b), s.y - (float(py) + row_offset), row <= s.row1 - py);
     }
 };
 
-// Compositing of a tile with the steps of Layout (RowSteps or PairSteps).
+// Compositing of a tile with the steps of Layout (a BlockSteps).
 template <class Layout>
 struct Raster {
     typedef typename Layout::V V;
     static constexpr int kSize = Layout::kSize;
 
     // Front-to-back compositing of one tile. Writes rgb/alpha/depth for the tile's pixels
-    // and the per-pixel final transmittance and contributor count for the backward pass;
-    // lanes[0] = pixel lanes evaluated, lanes[1] = those that composited a sample.
-    static void composite_forward(const std::vector<TileSplat>& G, const TileFrame& f,
+    // and, for the backward pass, the per-pixel final transmittance, each Gaussian's mask of
+    // the steps that composited a sample (step_mask[j], left as it is for Gaussians after
+    // the tile turned opaque) and, appended to records (unless null), the falloff of each
+    // such step's lanes (forward_step's vis); lanes[0] = pixel lanes evaluated, lanes[1] = those
+    // that composited a sample.
+    static void composite_forward(const TileSplat* G, int64_t n, const TileFrame& f,
                                   const float* background, float* rgb, float* alpha, float* depth,
-                                  float* T_final, int32_t* last_out, int64_t* lanes) {
+                                  float* T_final, uint64_t* step_mask, StepRecords* records,
+                                  int64_t* record_start, int64_t* lanes) {
         alignas(64) float T[kSize], cr[kSize], cg[kSize], cb[kSize], cz[kSize];
-        alignas(64) int32_t live[kSize], last[kSize];
+        alignas(64) int32_t live[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {cr, cg, cb, cz}) std::fill_n(c, kSize, 0.0f);
-        std::fill_n(last, kSize, 0);
         std::fill_n(live, kSize, 0);  // padding and pixels outside the image stay 0
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
             for (int px = 0; px < kTile && f.ox + px < f.width; ++px) live[Layout::at(px, py)] = -1;
-        const typename V::ForwardState S{T, cr, cg, cb, cz, last, live};
-        bool row_live[kTile];
+        const typename V::ForwardState S{T, cr, cg, cb, cz, live};
+        uint32_t live_rows[Layout::kGroups] = {};
         typename V::vi used{};
         int64_t steps = 0;
-        const int64_t n = int64_t(G.size());
         for (int64_t j = 0; j < n; ++j) {
             if (j % kLiveCheck == 0) {
-                bool tile_live = false;
-                for (int py = 0; py < kTile; ++py) {
-                    row_live[py] = Layout::row_any(live, py);
-                    tile_live |= row_live[py];
-                }
+                Layout::live_rows(live, live_rows);
+                uint32_t tile_live = 0;
+                for (uint32_t rows : live_rows) tile_live |= rows;
                 if (!tile_live) break;
             }
             const TileSplat& s = G[j];
-            const typename V::vi jj = V::splat_i(int32_t(j + 1));
-            Layout::steps(
-                s, [&](int py) { return row_live[py]; },
-                [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
-                    used += V::forward_step(S, s, p, centre, dy, jj, valid);
-                    ++steps;
-                });
+            uint64_t mask = 0;
+            float* out = nullptr;  // where the entry's records go, if kept
+            if (records) {
+                out = records->reserve(64 * (V::kWidth + 1));  // 64 steps at most
+                record_start[j] = out - records->data.data();
+            }
+            Layout::steps(s, live_rows,
+                          [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
+                              typename V::vf vis;
+                              const typename V::vi use =
+                                  V::forward_step(S, s, p, centre, dy, valid, vis);
+                              used += use;
+                              ++steps;
+                              if (V::any(use)) {
+                                  mask |= uint64_t(1) << k;
+                                  if (out) out = V::pack(out, use, vis);
+                              }
+                          });
+            if (records) records->size = out - records->data.data();
+            step_mask[j] = mask;
         }
 
-        for (int py = 0; py < kTile && f.oy + py < f.height; ++py)
-            for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
+        // out, a block's row (4 contiguous pixels) at a time where the tile's row holds it
+        typedef Lanes<4> H;
+        static_assert(Layout::kColumns == 4, "block rows of 4 pixels");
+        const int cols = std::min(kTile, f.width - f.ox);
+        for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
+            const int64_t row = int64_t(f.oy + py) * f.width + f.ox;
+            int px = 0;
+            for (; px + 4 <= cols; px += 4) {
                 const int p = Layout::at(px, py);
-                const int64_t o = int64_t(f.oy + py) * f.width + (f.ox + px);
+                const typename H::vf t = H::load(T + p);
+                const typename H::vf r = H::load(cr + p) + t * background[0];
+                const typename H::vf g = H::load(cg + p) + t * background[1];
+                const typename H::vf b = H::load(cb + p) + t * background[2];
+                H::store(alpha + row + px, 1.0f - t);
+                H::store(depth + row + px, H::load(cz + p));
+                H::store(T_final + row + px, t);
+                float* o = rgb + 3 * (row + px);
+                for (int i = 0; i < 4; ++i)
+                    o[3 * i] = r[i], o[3 * i + 1] = g[i], o[3 * i + 2] = b[i];
+            }
+            for (; px < cols; ++px) {
+                const int p = Layout::at(px, py);
+                const int64_t o = row + px;
                 rgb[3 * o] = cr[p] + T[p] * background[0];
                 rgb[3 * o + 1] = cg[p] + T[p] * background[1];
                 rgb[3 * o + 2] = cb[p] + T[p] * background[2];
                 alpha[o] = 1.0f - T[p];
                 depth[o] = cz[p];
                 T_final[o] = T[p];
-                last_out[o] = last[p];
             }
+        }
         lanes[0] = V::kWidth * steps;
         lanes[1] = V::count(used);
     }
 
-    // Back-to-front pass over one tile: transmittance is recovered by dividing out each
-    // alpha, and the gradient of everything behind a sample is carried as one scalar per
-    // pixel. Writes the kEntryGrad floats of the tile's j-th entry at
-    // entry_grad + slot[j] * kEntryGrad.
-    static void composite_backward(const std::vector<TileSplat>& G, const TileFrame& f,
+    // Back-to-front pass over one tile, over the steps in which the forward composited a
+    // sample, from their records (the forward's, from `records` on): transmittance is
+    // recovered by dividing out each alpha, and the gradient of everything behind a sample
+    // is carried as one scalar per pixel. Writes the kEntryGrad floats of the tile's j-th
+    // entry at entry_grad + slot[j] * kEntryGrad.
+    static void composite_backward(const TileSplat* G, int64_t n, const TileFrame& f,
                                    const float* background, const float* g_rgb,
                                    const float* g_alpha, const float* g_depth, const float* T_final,
-                                   const int32_t* last_in, const int64_t* slot, float* entry_grad) {
+                                   const uint64_t* step_mask, const float* records,
+                                   const int64_t* record_start, const int64_t* slot,
+                                   float* entry_grad) {
         alignas(64) float T[kSize], behind[kSize], gr[kSize], gg[kSize], gb[kSize], gz[kSize];
-        alignas(64) int32_t last[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {behind, gr, gg, gb, gz}) std::fill_n(c, kSize, 0.0f);
-        std::fill_n(last, kSize, 0);  // no sample is drawn at padding or outside the image
-        int row_last[kTile] = {0};
-        int tile_last = 0;
+        // in, a block's row (4 contiguous pixels) at a time where the tile's row holds it
+        typedef Lanes<4> H;
+        const int cols = std::min(kTile, f.width - f.ox);
         for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
-            for (int px = 0; px < kTile && f.ox + px < f.width; ++px) {
+            const int64_t row = int64_t(f.oy + py) * f.width + f.ox;
+            int px = 0;
+            for (; px + 4 <= cols; px += 4) {
                 const int p = Layout::at(px, py);
-                const int64_t o = int64_t(f.oy + py) * f.width + (f.ox + px);
+                const int64_t o = row + px;
+                typename H::vf r, g, b;
+                for (int i = 0; i < 4; ++i)
+                    r[i] = g_rgb[3 * (o + i)], g[i] = g_rgb[3 * (o + i) + 1],
+                    b[i] = g_rgb[3 * (o + i) + 2];
+                const typename H::vf ga = g_alpha ? H::load(g_alpha + o) : H::splat(0.0f);
+                const typename H::vf t = H::load(T_final + o);
+                H::store(gr + p, r);
+                H::store(gg + p, g);
+                H::store(gb + p, b);
+                H::store(gz + p, g_depth ? H::load(g_depth + o) : H::splat(0.0f));
+                H::store(T + p, t);
+                // rgb = ... + T bg and alpha = 1 - T: dL/dT_final, times T_final.
+                H::store(behind + p,
+                         (r * background[0] + g * background[1] + b * background[2] - ga) * t);
+            }
+            for (; px < cols; ++px) {
+                const int p = Layout::at(px, py);
+                const int64_t o = row + px;
                 gr[p] = g_rgb[3 * o];
                 gg[p] = g_rgb[3 * o + 1];
                 gb[p] = g_rgb[3 * o + 2];
                 gz[p] = g_depth ? g_depth[o] : 0.0f;
                 const float ga = g_alpha ? g_alpha[o] : 0.0f;
                 T[p] = T_final[o];
-                // rgb = ... + T bg and alpha = 1 - T: dL/dT_final, times T_final.
                 behind[p] =
                     (gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2] - ga) *
                     T[p];
-                last[p] = last_in[o];
-                row_last[py] = std::max(row_last[py], last[p]);
             }
-            tile_last = std::max(tile_last, row_last[py]);
         }
 
-        const int64_t n = int64_t(G.size());
-        const int64_t n_used = std::min<int64_t>(n, tile_last);
-        for (int64_t j = n_used; j < n; ++j)
-            std::fill_n(entry_grad + slot[j] * kEntryGrad, kEntryGrad, 0.0f);
-        const typename V::BackwardState S{T, behind, gr, gg, gb, gz, last};
-        for (int64_t j = n_used - 1; j >= 0; --j) {
-            const TileSplat& s = G[j];
-            const typename V::vi jj = V::splat_i(int32_t(j));
-            typename V::Moments M;
-            Layout::steps(
-                s, [&](int py) { return row_last[py] > j; },
-                [&](int p, typename V::vf centre, auto dy, typename V::vi valid) {
-                    V::backward_step(S, M, s, p, centre, dy, jj, valid);
-                });
-            float m[kEntryGrad] = {0};
-            M.add_to(m);
+        const typename V::BackwardState S{T, behind, gr, gg, gb, gz};
+        for (int64_t j = n - 1; j >= 0; --j) {
             float* e = entry_grad + slot[j] * kEntryGrad;
+            if (!step_mask[j]) {
+                std::fill_n(e, kEntryGrad, 0.0f);
+                continue;
+            }
+            const TileSplat& s = G[j];
+            const float* rec = records + record_start[j];
+            typename V::Moments M;
+            Layout::masked_steps(s, step_mask[j],
+                                 [&](int p, typename V::vf centre, auto dy, typename V::vi) {
+                                     typename V::vf vis;
+                                     rec = V::unpack(rec, vis);
+                                     V::backward_step(S, M, s, p, centre, dy, vis);
+                                 });
+            float m[kEntryGrad];
+            M.sums(m);
             e[0] = -(s.ca * m[0] + s.cb * m[1]);  // dp/dmean_x = -(ca dx + cb dy)
             e[1] = -(s.cb * m[0] + s.cc * m[1]);
             e[2] = -0.5f * m[2];

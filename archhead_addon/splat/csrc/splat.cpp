@@ -15,6 +15,7 @@
 #include <cstring>
 #include <exception>
 #include <memory>
+#include <mutex>
 #include <new>
 #include <vector>
 
@@ -69,6 +70,11 @@ Kernels& active_kernels() {
     return k;
 }
 
+bool& ellipse_steps() {
+    static bool on = true;
+    return on;
+}
+
 int thread_count(const ah_splat_params& p) {
     return p.num_threads > 0 ? p.num_threads : omp_get_max_threads();
 }
@@ -77,23 +83,71 @@ struct Context {
     ah_splat_params params;
     Camera cam;
     Kernels kernels;  // the forward's, so that its backward runs the same lanes
+    bool ellipse;     // the forward skipped the steps outside each Gaussian's ellipse
+    bool recorded;    // the forward kept its step records (params.for_backward)
     int64_t n;
     std::vector<float> means, log_scales, quats, logits, colors;
     Projected proj;
     Bins bins;
+    std::vector<Splat2D> splats;         // per Gaussian, input order
+    std::vector<TileSplat> tile_splats;  // per tile-list entry (bins.tile_ids)
     std::vector<float> T_final;
-    std::vector<int32_t> last;
+    // per thread, the records of its tiles' steps (StepRecords); per tile, which thread's
+    // and from where
+    std::vector<StepRecords> records;
+    std::vector<int32_t> tile_thread;
+    std::vector<int64_t> record_start;  // per tile-list entry, in its thread's records
+    std::vector<uint64_t> step_mask;    // per tile-list entry: its steps that drew a sample
+    // scratch of the passes, kept with the context for reuse (see acquire)
+    std::vector<double> depth64;
+    std::vector<uint8_t> visible;
+    std::vector<int32_t> ids;
+    std::vector<float> entry_grad;
     // Wall-clock seconds of the phases, for the benchmark's split (ah_splat_stats).
     double t_project = 0, t_bin = 0, t_composite = 0, t_bwd_composite = 0, t_bwd_project = 0;
     int64_t lanes_evaluated = 0, lanes_used = 0;  // compositing's pixel lanes (forward)
 
     Context(const ah_splat_params& p, int64_t n_)
-        : params(p), cam(p), kernels(active_kernels()), n(n_) {}
+        : params(p),
+          cam(p),
+          kernels(active_kernels()),
+          ellipse(ellipse_steps()),
+          recorded(p.for_backward != 0),
+          n(n_) {}
 };
 
-template <typename T>
-std::vector<T> copy_of(const T* data, int64_t count) {
-    return count > 0 ? std::vector<T>(data, data + count) : std::vector<T>();
+// Released contexts are kept (up to kPooled) and reused by the next forward passes with
+// their buffers: fresh buffers of tens of MB are mapped page by page on first touch, which
+// costs about as much as compositing a small image.
+constexpr size_t kPooled = 1;
+std::mutex pool_mutex;
+std::vector<std::unique_ptr<Context>> pool;
+
+std::unique_ptr<Context> acquire(const ah_splat_params& p, int64_t n) {
+    std::unique_ptr<Context> C;
+    {
+        const std::lock_guard<std::mutex> lock(pool_mutex);
+        if (!pool.empty()) {
+            C = std::move(pool.back());
+            pool.pop_back();
+        }
+    }
+    if (!C) return std::make_unique<Context>(p, n);
+    C->params = p;
+    C->cam = Camera(p);
+    C->kernels = active_kernels();
+    C->ellipse = ellipse_steps();
+    C->recorded = p.for_backward != 0;
+    C->n = n;
+    C->t_project = C->t_bin = C->t_composite = C->t_bwd_composite = C->t_bwd_project = 0;
+    C->lanes_evaluated = C->lanes_used = 0;
+    return C;
+}
+
+void release(Context* ctx) {
+    std::unique_ptr<Context> C(ctx);
+    const std::lock_guard<std::mutex> lock(pool_mutex);
+    if (pool.size() < kPooled) pool.push_back(std::move(C));
 }
 
 constexpr int64_t kProjectBlock = 256;  // Gaussians per parallel work item (a lane multiple)
@@ -110,6 +164,31 @@ void project_blocks(const Kernels& K, const Camera& cam, const Gaussians& g, int
         K.project_range(cam, g, b, std::min(b + kProjectBlock, n), out);
 }
 
+TileFrame frame_of(const Context& C, int64_t tile) {
+    return TileFrame{int(tile % C.bins.tiles_x) * kTile, int(tile / C.bins.tiles_x) * kTile,
+                     C.params.width, C.params.height};
+}
+
+// The tile lists' Gaussians as the tiles read them, once for the forward and the backward.
+void gather_tiles(Context& C) {
+    const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
+    C.tile_splats.resize(C.bins.tile_ids.size());
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
+    for (int64_t t = 0; t < n_tiles; ++t) {
+        const TileFrame f = frame_of(C, t);
+        const int64_t e = C.bins.tile_start[t + 1];
+        for (int64_t p = C.bins.tile_start[t]; p < e; ++p) {
+            if (p + 16 < e) {  // random reads: both cache lines of the record 16 entries on
+                const char* next =
+                    reinterpret_cast<const char*>(&C.splats[C.bins.tile_ids[p + 16]]);
+                __builtin_prefetch(next);
+                __builtin_prefetch(next + 64);
+            }
+            C.tile_splats[p] = tile_splat(C.splats[C.bins.tile_ids[p]], f.ox, f.oy);
+        }
+    }
+}
+
 void project_all(Context& C) {
     const int64_t n = C.n;
     C.proj.mean2d.assign(2 * n, 0.0);
@@ -117,55 +196,55 @@ void project_all(Context& C) {
     C.proj.opacity.assign(n, 0.0f);
     C.proj.depth.assign(n, 0.0f);
     C.proj.bbox.assign(4 * n, 0);
-    std::vector<double> depth64(n, 0.0);
-    std::vector<uint8_t> visible(n, 0);
+    C.proj.q_max.assign(n, 0.0f);
+    C.depth64.assign(n, 0.0);
+    C.visible.assign(n, 0);
     const double t0 = omp_get_wtime();
-    const ProjectOut out{
-        C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(), C.proj.depth.data(),
-        depth64.data(),       C.proj.bbox.data(),  visible.data(),        nullptr};
+    const ProjectOut out{C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(),
+                         C.proj.depth.data(),  C.depth64.data(),    C.proj.bbox.data(),
+                         C.proj.q_max.data(),  C.visible.data(),    nullptr};
     project_blocks(C.kernels, C.cam, inputs(C), n, out, thread_count(C.params));
+    splats_of(C.splats, C.proj, C.colors.data(), n, C.ellipse);
     const double t1 = omp_get_wtime();
     C.t_project = t1 - t0;
-    std::vector<int32_t> ids;
+    C.ids.clear();
     for (int64_t i = 0; i < n; ++i)
-        if (visible[i]) ids.push_back(int32_t(i));
-    bin_tiles(C.bins, sort_by_depth(ids, depth64), C.proj.bbox, C.params.width, C.params.height,
+        if (C.visible[i]) C.ids.push_back(int32_t(i));
+    bin_tiles(C.bins, sort_by_depth(C.ids, C.depth64), C.proj.bbox, C.params.width, C.params.height,
               thread_count(C.params));
+    gather_tiles(C);
     C.t_bin = omp_get_wtime() - t1;
 }
 
-TileFrame frame_of(const Context& C, int64_t tile) {
-    return TileFrame{int(tile % C.bins.tiles_x) * kTile, int(tile / C.bins.tiles_x) * kTile,
-                     C.params.width, C.params.height};
-}
-
-// Runs body(G, frame, first_entry, tile) for every tile in parallel, G holding the tile's splats
-// gathered front to back; dynamic scheduling because tiles differ widely in load.
+// Runs body(G, frame, first_entry, tile) for every tile in parallel, G holding the tile's
+// tile_splats, front to back; dynamic scheduling because tiles differ widely in load.
 template <class Body>
 void for_each_tile(Context& C, Body&& body) {
     const int64_t n_tiles = int64_t(C.bins.tiles_x) * C.bins.tiles_y;
-#pragma omp parallel num_threads(thread_count(C.params))
-    {
-        std::vector<TileSplat> G;
-#pragma omp for schedule(dynamic, 1)
-        for (int64_t t = 0; t < n_tiles; ++t) {
-            const int64_t s = C.bins.tile_start[t], e = C.bins.tile_start[t + 1];
-            const TileFrame f = frame_of(C, t);
-            gather_tile(G, C.proj, C.colors.data(), C.bins.tile_ids.data() + s, e - s, f.ox, f.oy);
-            body(G, f, s, t);
-        }
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(dynamic, 1)
+    for (int64_t t = 0; t < n_tiles; ++t) {
+        const int64_t s = C.bins.tile_start[t];
+        body(&C.tile_splats[s], C.bins.tile_start[t + 1] - s, frame_of(C, t), s, t);
     }
 }
 
 void render(Context& C, float* rgb, float* alpha, float* depth) {
     const int64_t pixels = int64_t(C.params.width) * C.params.height;
     C.T_final.assign(pixels, 1.0f);
-    C.last.assign(pixels, 0);
-    std::vector<int64_t> lanes(2 * (C.bins.tile_start.size() - 1));
+    C.step_mask.assign(C.bins.tile_ids.size(), 0);
+    const int64_t n_tiles = int64_t(C.bins.tile_start.size()) - 1;
+    C.records.resize(thread_count(C.params));
+    for (StepRecords& r : C.records) r.size = 0;
+    C.tile_thread.resize(n_tiles);
+    C.record_start.resize(C.bins.tile_ids.size());
+    std::vector<int64_t> lanes(2 * n_tiles);
     const double t0 = omp_get_wtime();
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t, int64_t t) {
-        C.kernels.composite_forward(G, f, C.params.background, rgb, alpha, depth, C.T_final.data(),
-                                    C.last.data(), &lanes[2 * t]);
+    for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
+        const int thread = omp_get_thread_num();
+        C.tile_thread[t] = thread;
+        C.kernels.composite_forward(
+            G, n, f, C.params.background, rgb, alpha, depth, C.T_final.data(), &C.step_mask[s],
+            C.recorded ? &C.records[thread] : nullptr, &C.record_start[s], &lanes[2 * t]);
     });
     C.t_composite = omp_get_wtime() - t0;
     for (size_t t = 0; t < lanes.size(); t += 2) {
@@ -178,12 +257,13 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
               float* d_means, float* d_log_scales, float* d_quats, float* d_logits,
               float* d_colors) {
     const int64_t n = C.n;
-    std::vector<float> entry_grad(C.bins.tile_ids.size() * kEntryGrad);
+    C.entry_grad.resize(C.bins.tile_ids.size() * kEntryGrad);  // every tile writes its entries
     const double t0 = omp_get_wtime();
-    for_each_tile(C, [&](const std::vector<TileSplat>& G, const TileFrame& f, int64_t s, int64_t) {
-        C.kernels.composite_backward(G, f, C.params.background, g_rgb, g_alpha, g_depth,
-                                     C.T_final.data(), C.last.data(), &C.bins.slot_of[s],
-                                     entry_grad.data());
+    for_each_tile(C, [&](const TileSplat* G, int64_t n, const TileFrame& f, int64_t s, int64_t t) {
+        C.kernels.composite_backward(G, n, f, C.params.background, g_rgb, g_alpha, g_depth,
+                                     C.T_final.data(), &C.step_mask[s],
+                                     C.records[C.tile_thread[t]].data.data(), &C.record_start[s],
+                                     &C.bins.slot_of[s], C.entry_grad.data());
     });
     const double t1 = omp_get_wtime();
     C.t_bwd_composite = t1 - t0;
@@ -194,26 +274,27 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     std::memset(d_logits, 0, sizeof(float) * n);
     std::memset(d_colors, 0, sizeof(float) * 3 * n);
     // Each visible Gaussian sums its own tile records (contiguous, in tile order), then its
-    // projection is recomputed and differentiated L Gaussians at a time.
+    // projection is recomputed and differentiated L Gaussians at a time, block by block (the
+    // block's sums stay in cache).
     const int64_t n_visible = int64_t(C.bins.sorted.size());
-    const int threads = thread_count(C.params);
-    std::vector<double> acc(n_visible * kEntryGrad, 0.0);
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int64_t k = 0; k < n_visible; ++k) {
-        double* a = &acc[k * kEntryGrad];
-        for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
-            const float* e = &entry_grad[q * kEntryGrad];
-            for (int c = 0; c < kEntryGrad; ++c) a[c] += e[c];
-        }
-        const int32_t i = C.bins.sorted[k];
-        for (int c = 0; c < 3; ++c) d_colors[3 * i + c] = saturate(a[6 + c]);
-    }
     const GradOut out{d_means, d_log_scales, d_quats, d_logits};
     const Gaussians g = inputs(C);
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int64_t b = 0; b < n_visible; b += kProjectBlock)
-        C.kernels.vjp_range(C.cam, g, C.bins.sorted.data(), acc.data(), b,
-                            std::min(b + kProjectBlock, n_visible), out);
+    const std::vector<float>& entry_grad = C.entry_grad;
+#pragma omp parallel for num_threads(thread_count(C.params)) schedule(static)
+    for (int64_t b = 0; b < n_visible; b += kProjectBlock) {
+        const int64_t e = std::min(b + kProjectBlock, n_visible);
+        double acc[kProjectBlock * kEntryGrad] = {};
+        for (int64_t k = b; k < e; ++k) {
+            double* a = &acc[(k - b) * kEntryGrad];
+            for (int64_t q = C.bins.isect_start[k]; q < C.bins.isect_start[k + 1]; ++q) {
+                const float* r = &entry_grad[q * kEntryGrad];
+                for (int c = 0; c < kEntryGrad; ++c) a[c] += r[c];
+            }
+            const int32_t i = C.bins.sorted[k];
+            for (int c = 0; c < 3; ++c) d_colors[3 * i + c] = saturate(a[6 + c]);
+        }
+        C.kernels.vjp_range(C.cam, g, C.bins.sorted.data(), acc, b, e, out);
+    }
     C.t_bwd_project = omp_get_wtime() - t1;
 }
 
@@ -232,6 +313,12 @@ int32_t ah_splat_select_isa(int32_t isa) {
 
 int32_t ah_splat_isa_supported(int32_t isa) { return isa_supported(isa) ? 1 : 0; }
 
+int32_t ah_splat_set_ellipse_steps(int32_t on) {
+    const bool was = ellipse_steps();
+    ellipse_steps() = on != 0;
+    return was ? 1 : 0;
+}
+
 int ah_splat_project(const ah_splat_params* params, int64_t n, const float* means,
                      const float* log_scales, const float* quats, const float* opacity_logits,
                      double* means2d, float* conics, float* depths, float* opacities,
@@ -245,9 +332,10 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
     std::memset(radii, 0, sizeof(int32_t) * 2 * n);
     std::vector<double> depth64(n);
     std::vector<int32_t> bbox(4 * n);
+    std::vector<float> q_max(n);
     std::vector<uint8_t> visible(n);
-    const ProjectOut out{means2d,        conics,      opacities,      depths,
-                         depth64.data(), bbox.data(), visible.data(), radii};
+    const ProjectOut out{means2d,     conics,       opacities,      depths, depth64.data(),
+                         bbox.data(), q_max.data(), visible.data(), radii};
     project_blocks(active_kernels(), cam, Gaussians{means, log_scales, quats, opacity_logits}, n,
                    out, thread_count(*params));
     return 0;
@@ -263,12 +351,12 @@ void* ah_splat_forward(const ah_splat_params* params, int64_t n, const float* me
         return nullptr;
     }
     try {
-        auto C = std::make_unique<Context>(*params, n);
-        C->means = copy_of(means, 3 * n);
-        C->log_scales = copy_of(log_scales, 3 * n);
-        C->quats = copy_of(quats, 4 * n);
-        C->logits = copy_of(opacity_logits, n);
-        C->colors = copy_of(colors, 3 * n);
+        auto C = acquire(*params, n);
+        C->means.assign(means, means + 3 * n);
+        C->log_scales.assign(log_scales, log_scales + 3 * n);
+        C->quats.assign(quats, quats + 4 * n);
+        C->logits.assign(opacity_logits, opacity_logits + n);
+        C->colors.assign(colors, colors + 3 * n);
         project_all(*C);
         render(*C, out_rgb, out_alpha, out_depth);
         return C.release();
@@ -285,6 +373,10 @@ int ah_splat_backward(void* ctx, const float* g_rgb, const float* g_alpha, const
                       float* d_colors, char* err, int32_t err_len) {
     if (!ctx || !g_rgb) {
         set_error(err, err_len, "splat backward needs a forward context and g_rgb");
+        return -1;
+    }
+    if (!static_cast<Context*>(ctx)->recorded) {
+        set_error(err, err_len, "splat backward needs a forward run with for_backward = 1");
         return -1;
     }
     try {
@@ -315,6 +407,6 @@ void ah_splat_stats(const void* ctx, int64_t* stats) {
     std::copy(out, out + AH_SPLAT_STATS_LEN, stats);
 }
 
-void ah_splat_release(void* ctx) { delete static_cast<Context*>(ctx); }
+void ah_splat_release(void* ctx) { release(static_cast<Context*>(ctx)); }
 
 }  // extern "C"

@@ -21,7 +21,7 @@
 extern "C" {
 #endif
 
-#define AH_SPLAT_ABI_VERSION 2
+#define AH_SPLAT_ABI_VERSION 3
 #define AH_LOG_SCALE_MIN -23.0f  // scale 1e-10
 #define AH_LOG_SCALE_MAX 11.5f   // scale ~1e5
 
@@ -34,6 +34,10 @@ typedef struct {
     int32_t antialiased;  // 1: scale opacity by sqrt(det(cov) / det(cov + eps2d I))
     float background[3];
     int32_t num_threads;  // <= 0: OpenMP default
+    // ah_splat_forward: 1 to keep what ah_splat_backward needs (the falloff of the
+    // composited steps: about 5 % of the forward's time), 0 for an image alone (its context
+    // then refuses a backward). ah_splat_project ignores it.
+    int32_t for_backward;
 } ah_splat_params;
 
 // Per-Gaussian projection (exposed for tests and diagnostics). Culled Gaussians get
@@ -79,6 +83,11 @@ void ah_splat_release(void* ctx);
 int32_t ah_splat_select_isa(int32_t isa);
 // 1 when this CPU and build can run `isa`, else 0.
 int32_t ah_splat_isa_supported(int32_t isa);
+// 1 (the default): the compositing skips the steps that lie outside each Gaussian's
+// ellipse; 0: it takes every step of the Gaussian's box (same images and gradients, for
+// tests and benchmarks). Applies to the following forward passes (and their backward
+// passes); returns the previous setting. Not to be called while a render runs.
+int32_t ah_splat_set_ellipse_steps(int32_t on);
 
 int32_t ah_splat_abi_version(void);
 
