@@ -13,8 +13,8 @@ parts this file rebuilds:
   (`LibraryLPIPS`), and the target's features computed again for every render of a step;
 - the decoder's first layer on the concatenated texel inputs, the heads' inputs sliced
   (`concatenated_decoder_forward`).
-(Not rebuilt: FLAME's identity product per frame, now baked into the template, 1-2 % of a
-render.) The split times each part alone, forward and backward, on the same frame and
+(Not rebuilt: the splat kernel, whose versions `splat_versions.py` compares, and FLAME's
+identity product per frame, now baked into the template, 1-2 % of a render.) The split times each part alone, forward and backward, on the same frame and
 levels as the step: the resample; the rest of the avatar (FLAME, position map, PE, the
 heads: the "decoder"); the splat kernel; ST-LPIPS (on the steps that use it, once per render
 with its own reference); Adam; and the data (the step's frame and levels; the frames are in
