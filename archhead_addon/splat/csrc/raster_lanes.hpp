@@ -400,39 +400,46 @@ struct Raster {
             step_mask[j] = mask;
         }
 
-        // out, a block's row (4 contiguous pixels) at a time where the tile's row holds it
         typedef Lanes<4> H;
-        static_assert(Layout::kColumns == 4, "block rows of 4 pixels");
-        const int cols = std::min(kTile, f.width - f.ox);
-        for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
-            const int64_t row = int64_t(f.oy + py) * f.width + f.ox;
-            int px = 0;
-            for (; px + 4 <= cols; px += 4) {
-                const int p = Layout::at(px, py);
+        tile_pixels(
+            f,
+            [&](int p, int64_t o) {
                 const typename H::vf t = H::load(T + p);
                 const typename H::vf r = H::load(cr + p) + t * background[0];
                 const typename H::vf g = H::load(cg + p) + t * background[1];
                 const typename H::vf b = H::load(cb + p) + t * background[2];
-                H::store(alpha + row + px, 1.0f - t);
-                H::store(depth + row + px, H::load(cz + p));
-                H::store(T_final + row + px, t);
-                float* o = rgb + 3 * (row + px);
+                H::store(alpha + o, 1.0f - t);
+                H::store(depth + o, H::load(cz + p));
+                H::store(T_final + o, t);
+                float* out = rgb + 3 * o;
                 for (int i = 0; i < 4; ++i)
-                    o[3 * i] = r[i], o[3 * i + 1] = g[i], o[3 * i + 2] = b[i];
-            }
-            for (; px < cols; ++px) {
-                const int p = Layout::at(px, py);
-                const int64_t o = row + px;
+                    out[3 * i] = r[i], out[3 * i + 1] = g[i], out[3 * i + 2] = b[i];
+            },
+            [&](int p, int64_t o) {
                 rgb[3 * o] = cr[p] + T[p] * background[0];
                 rgb[3 * o + 1] = cg[p] + T[p] * background[1];
                 rgb[3 * o + 2] = cb[p] + T[p] * background[2];
                 alpha[o] = 1.0f - T[p];
                 depth[o] = cz[p];
                 T_final[o] = T[p];
-            }
-        }
+            });
         lanes[0] = V::kWidth * steps;
         lanes[1] = V::count(used);
+    }
+
+    // The tile's pixels inside the image, a block's row (4 contiguous pixels of the tile
+    // state, 4 of the image row) at a time where the row holds one: chunk(p, o) for those,
+    // pixel(p, o) for the rest; p in the tile state, o in the image.
+    template <class Chunk, class Pixel>
+    static void tile_pixels(const TileFrame& f, Chunk chunk, Pixel pixel) {
+        static_assert(Layout::kColumns == 4, "block rows of 4 pixels");
+        const int cols = std::min(kTile, f.width - f.ox);
+        for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
+            const int64_t row = int64_t(f.oy + py) * f.width + f.ox;
+            int px = 0;
+            for (; px + 4 <= cols; px += 4) chunk(Layout::at(px, py), row + px);
+            for (; px < cols; ++px) pixel(Layout::at(px, py), row + px);
+        }
     }
 
     // Back-to-front pass over one tile, over the steps in which the forward composited a
@@ -449,15 +456,10 @@ struct Raster {
         alignas(64) float T[kSize], behind[kSize], gr[kSize], gg[kSize], gb[kSize], gz[kSize];
         std::fill_n(T, kSize, 1.0f);
         for (float* c : {behind, gr, gg, gb, gz}) std::fill_n(c, kSize, 0.0f);
-        // in, a block's row (4 contiguous pixels) at a time where the tile's row holds it
         typedef Lanes<4> H;
-        const int cols = std::min(kTile, f.width - f.ox);
-        for (int py = 0; py < kTile && f.oy + py < f.height; ++py) {
-            const int64_t row = int64_t(f.oy + py) * f.width + f.ox;
-            int px = 0;
-            for (; px + 4 <= cols; px += 4) {
-                const int p = Layout::at(px, py);
-                const int64_t o = row + px;
+        tile_pixels(
+            f,
+            [&](int p, int64_t o) {
                 typename H::vf r, g, b;
                 for (int i = 0; i < 4; ++i)
                     r[i] = g_rgb[3 * (o + i)], g[i] = g_rgb[3 * (o + i) + 1],
@@ -472,10 +474,8 @@ struct Raster {
                 // rgb = ... + T bg and alpha = 1 - T: dL/dT_final, times T_final.
                 H::store(behind + p,
                          (r * background[0] + g * background[1] + b * background[2] - ga) * t);
-            }
-            for (; px < cols; ++px) {
-                const int p = Layout::at(px, py);
-                const int64_t o = row + px;
+            },
+            [&](int p, int64_t o) {
                 gr[p] = g_rgb[3 * o];
                 gg[p] = g_rgb[3 * o + 1];
                 gb[p] = g_rgb[3 * o + 2];
@@ -485,8 +485,7 @@ struct Raster {
                 behind[p] =
                     (gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2] - ga) *
                     T[p];
-            }
-        }
+            });
 
         const typename V::BackwardState S{T, behind, gr, gg, gb, gz};
         for (int64_t j = n - 1; j >= 0; --j) {
