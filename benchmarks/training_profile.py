@@ -14,14 +14,15 @@ parts this file rebuilds:
 - the decoder's first layer on the concatenated texel inputs, the heads' inputs sliced
   (`concatenated_decoder_forward`).
 (Not rebuilt: the splat kernel, whose versions `splat_versions.py` compares, and FLAME's
-identity product per frame, now baked into the template, 1-2 % of a render.) The split times each part alone, forward and backward, on the same frame and
-levels as the step: the resample; the rest of the avatar (FLAME, position map, PE, the
-heads: the "decoder"); the splat kernel; ST-LPIPS (on the steps that use it, once per render
-with its own reference); Adam; and the data (the step's frame and levels; the frames are in
-memory from the start). "other" is what the step took beyond them (the losses, zeroing,
-autograd's own work, and in "after" minus the references a step shares) and goes negative
-when the machine's load moved between the measurements. Ratios are of medians over the same
-steps.
+identity product per frame, now baked into the template, 1-2 % of a render.)
+
+The split times each part alone, forward and backward, on the same frame and levels as the
+step: the resample; the rest of the avatar (FLAME, position map, PE, the heads: the
+"decoder"); the splat kernel; ST-LPIPS (on the steps that use it, once per render with its
+own reference); Adam; and the data (the step's frame and levels; the frames are in memory
+from the start). "other" is what the step took beyond them (the losses, zeroing, autograd's
+own work, and in "after" minus the references a step shares) and goes negative when the
+machine's load moved between the measurements. Ratios are of medians over the same steps.
 """
 
 from __future__ import annotations
