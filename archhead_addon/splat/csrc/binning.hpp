@@ -53,13 +53,17 @@ inline std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& ids,
 }
 
 // Tile lists. tile_start has tiles + 1 entries; tile_ids[tile_start[t] .. tile_start[t+1])
-// are the Gaussians touching tile t, front to back. For the
-// backward reduction, tile-list entry p has the slot slot_of[p] in Gaussian order: the k-th sorted
-// Gaussian owns slots isect_start[k] .. isect_start[k+1] (its tiles in increasing order), so the
-// tiles scatter their gradient records there and each Gaussian reads its own contiguously.
+// are the Gaussians touching tile t, front to back. For the backward reduction, tile-list
+// entry p has the slot slot_of[p]: the i-th Gaussian of slot_ids owns slots isect_start[i] ..
+// isect_start[i+1] (its tiles in increasing order), so the tiles scatter their gradient
+// records there and each Gaussian reads its own contiguously. slot_ids orders the visible
+// Gaussians by their first tile (front to back within one): a tile's entries then land in a
+// few nearby runs of slots, where depth order spread them over the whole array and the
+// backward's compositing loop stalled on the cache misses of its writes.
 struct Bins {
     int tiles_x = 0, tiles_y = 0;
-    std::vector<int32_t> sorted;  // visible Gaussians, front to back
+    std::vector<int32_t> sorted;    // visible Gaussians, front to back
+    std::vector<int32_t> slot_ids;  // visible Gaussians by first tile, then front to back
     std::vector<int64_t> tile_start, isect_start;
     std::vector<int32_t> tile_ids;
     std::vector<int64_t> slot_of;
@@ -82,7 +86,7 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
     };
     // cursor[c * n_tiles + t]: first holds chunk c's count in tile t, then its write position
     std::vector<int64_t> cursor(size_t(chunks) * n_tiles, 0);
-    B.isect_start.assign(n + 1, 0);
+    std::vector<int64_t> first(n), isects(n);  // per sorted Gaussian: first tile, tile count
 #pragma omp parallel for num_threads(chunks) schedule(static, 1)
     for (int c = 0; c < chunks; ++c) {
         int64_t* count = &cursor[size_t(c) * n_tiles];
@@ -91,10 +95,23 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
             tiles_of(k, tx0, tx1, ty0, ty1);
             for (int ty = ty0; ty <= ty1; ++ty)
                 for (int tx = tx0; tx <= tx1; ++tx) ++count[int64_t(ty) * B.tiles_x + tx];
-            B.isect_start[k + 1] = int64_t(tx1 - tx0 + 1) * (ty1 - ty0 + 1);
+            first[k] = int64_t(ty0) * B.tiles_x + tx0;
+            isects[k] = int64_t(tx1 - tx0 + 1) * (ty1 - ty0 + 1);
         }
     }
-    for (int64_t k = 0; k < n; ++k) B.isect_start[k + 1] += B.isect_start[k];
+    // slot order: a stable counting sort by first tile; then each sorted Gaussian's first slot
+    std::vector<int64_t> bucket(n_tiles + 1, 0);
+    for (int64_t k = 0; k < n; ++k) ++bucket[first[k] + 1];
+    for (int64_t t = 0; t < n_tiles; ++t) bucket[t + 1] += bucket[t];
+    B.slot_ids.resize(n);
+    B.isect_start.assign(n + 1, 0);
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t i = bucket[first[k]]++;
+        B.slot_ids[i] = B.sorted[k];
+        B.isect_start[i + 1] = isects[k];
+        first[k] = i;  // from here: the rank in slot order
+    }
+    for (int64_t i = 0; i < n; ++i) B.isect_start[i + 1] += B.isect_start[i];
     B.tile_start.assign(n_tiles + 1, 0);
     for (int64_t t = 0; t < n_tiles; ++t) {
         int64_t pos = B.tile_start[t];
@@ -113,7 +130,7 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
         for (int64_t k = n * c / chunks; k < n * (c + 1) / chunks; ++k) {
             int tx0, tx1, ty0, ty1;
             tiles_of(k, tx0, tx1, ty0, ty1);
-            int64_t e = B.isect_start[k];
+            int64_t e = B.isect_start[first[k]];
             for (int ty = ty0; ty <= ty1; ++ty)
                 for (int tx = tx0; tx <= tx1; ++tx) {
                     const int64_t p = pos[int64_t(ty) * B.tiles_x + tx]++;

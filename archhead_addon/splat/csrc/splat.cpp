@@ -276,7 +276,7 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
     // Each visible Gaussian sums its own tile records (contiguous, in tile order), then its
     // projection is recomputed and differentiated L Gaussians at a time, block by block (the
     // block's sums stay in cache).
-    const int64_t n_visible = int64_t(C.bins.sorted.size());
+    const int64_t n_visible = int64_t(C.bins.slot_ids.size());
     const GradOut out{d_means, d_log_scales, d_quats, d_logits};
     const Gaussians g = inputs(C);
     const std::vector<float>& entry_grad = C.entry_grad;
@@ -290,10 +290,10 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
                 const float* r = &entry_grad[q * kEntryGrad];
                 for (int c = 0; c < kEntryGrad; ++c) a[c] += r[c];
             }
-            const int32_t i = C.bins.sorted[k];
+            const int32_t i = C.bins.slot_ids[k];
             for (int c = 0; c < 3; ++c) d_colors[3 * i + c] = saturate(a[6 + c]);
         }
-        C.kernels.vjp_range(C.cam, g, C.bins.sorted.data(), acc, b, e, out);
+        C.kernels.vjp_range(C.cam, g, C.bins.slot_ids.data(), acc, b, e, out);
     }
     C.t_bwd_project = omp_get_wtime() - t1;
 }
