@@ -86,7 +86,8 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
     };
     // cursor[c * n_tiles + t]: first holds chunk c's count in tile t, then its write position
     std::vector<int64_t> cursor(size_t(chunks) * n_tiles, 0);
-    std::vector<int64_t> first(n), isects(n);  // per sorted Gaussian: first tile, tile count
+    // per sorted Gaussian: its first tile (then its rank in slot order), its tile count
+    std::vector<int64_t> first(n), isects(n);
 #pragma omp parallel for num_threads(chunks) schedule(static, 1)
     for (int c = 0; c < chunks; ++c) {
         int64_t* count = &cursor[size_t(c) * n_tiles];
@@ -130,7 +131,7 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
         for (int64_t k = n * c / chunks; k < n * (c + 1) / chunks; ++k) {
             int tx0, tx1, ty0, ty1;
             tiles_of(k, tx0, tx1, ty0, ty1);
-            int64_t e = B.isect_start[first[k]];
+            int64_t e = B.isect_start[first[k]];  // its first slot
             for (int ty = ty0; ty <= ty1; ++ty)
                 for (int tx = tx0; tx <= tx1; ++tx) {
                     const int64_t p = pos[int64_t(ty) * B.tiles_x + tx]++;
