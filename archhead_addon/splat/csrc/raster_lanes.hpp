@@ -77,13 +77,29 @@ struct Lanes {
         for (int i = 0; i < L; ++i) x[i] = std::sqrt(x[i]);
         return x;
     }
-    static vf max(vf a, vf b) { return a > b ? a : b; }
+    // a > b ? a : b and a < b ? a : b (b where either is NaN), as the max / min instructions
+    // (GCC's generic code for the selects takes a compare and a blend).
+    static vf max(vf a, vf b) {
+#ifdef __x86_64__
+        if constexpr (L == 4) return (vf)_mm_max_ps((__m128)a, (__m128)b);
+        if constexpr (L == 8) return (vf)_mm256_max_ps((__m256)a, (__m256)b);
+        if constexpr (L == 16) return (vf)_mm512_max_ps((__m512)a, (__m512)b);
+#endif
+        return a > b ? a : b;
+    }
+    static vf min(vf a, vf b) {
+#ifdef __x86_64__
+        if constexpr (L == 4) return (vf)_mm_min_ps((__m128)a, (__m128)b);
+        if constexpr (L == 8) return (vf)_mm256_min_ps((__m256)a, (__m256)b);
+        if constexpr (L == 16) return (vf)_mm512_min_ps((__m512)a, (__m512)b);
+#endif
+        return a < b ? a : b;
+    }
 
     // exp for the Gaussian falloff (Cephes expf polynomial, about 1 ulp, exp(0) == 1
     // exactly). NaN and large |x| map to the clamp bounds.
     static vf falloff_exp(vf x) {
-        x = x > splat(-87.0f) ? x : splat(-87.0f);
-        x = x < splat(88.0f) ? x : splat(88.0f);
+        x = min(max(x, splat(-87.0f)), splat(88.0f));
         const vf n = (x * 1.44269504088896341f + 12582912.0f) - 12582912.0f;  // round
         vf r = x - n * 0.693359375f;
         r = r - n * -2.12194440e-4f;
@@ -113,7 +129,7 @@ struct Lanes {
         f.power = -0.5f * (s.ca * f.dx * f.dx + s.cc * dy * dy) - s.cb * f.dx * dy;
         f.vis = falloff_exp(f.power);
         const vf t = s.op * f.vis;
-        f.a = t < kAlphaMax ? t : splat(kAlphaMax);
+        f.a = min(t, splat(kAlphaMax));
         f.ok = (f.power <= 0.0f) & (f.a >= kAlphaMin);
         return f;
     }
@@ -226,7 +242,7 @@ struct Lanes {
                               vf centre, DY dy, vf vis) {
         const vi ok = vis > 0.0f;
         const vf t = s.op * vis;
-        const vf a = t < kAlphaMax ? t : splat(kAlphaMax);  // the forward's alpha, 0 off ok
+        const vf a = min(t, splat(kAlphaMax));  // the forward's alpha, 0 off ok
         const vf dx = s.x - centre;
         const vf inv_one_minus = 1.0f / (1.0f - a);
         const vf Tj = load(S.T + p) * inv_one_minus;
@@ -314,10 +330,11 @@ struct BlockSteps {
             if (first > b0) b0 = first > b1 ? b1 + 1 : int(first) + (int(first) < first);  // ceil
             if (last < b1) b1 = last < b0 ? b0 - 1 : int(last);  // floor: 0 <= last < b1 here
             const uint32_t band_rows = ((1u << rows) - 1) << py;
-            for (int b = b0; b <= b1; ++b) {
-                const int k = band * kBlocks + b;
-                if (live[b] & band_rows) step_at(s, k, [&](auto... a) { step(k, a...); });
-            }
+            const auto dy = band_dy(s, py);
+            const typename V::vi valid = band_valid(s, py);
+            for (int b = b0; b <= b1; ++b)
+                if (live[b] & band_rows)
+                    step(band * kBlocks + b, at(C * b, py), block_centres(b), dy, valid);
         }
     }
     template <class Step>
@@ -327,19 +344,31 @@ struct BlockSteps {
     // Step k of s as step(p, centre, dy, valid); dy a float for one row.
     template <class Step>
     [[gnu::always_inline]] static void step_at(const TileSplat& s, int k, Step&& step) {
-        typename V::vf centre, row_offset;
-        typename V::vi row;
-        for (int l = 0; l < C * R; ++l) {
-            centre[l] = float(l % C) + 0.5f;
-            row_offset[l] = float(l / C) + 0.5f;  // py + (r + 0.5) == (py + r) + 0.5 exactly
-            row[l] = l / C;
+        const int b = unsigned(k) % kBlocks, py = s.row0 + R * int(unsigned(k) / kBlocks);
+        step(at(C * b, py), block_centres(b), band_dy(s, py), band_valid(s, py));
+    }
+    // The pixel centres' columns of block b, lane by lane.
+    static typename V::vf block_centres(int b) {
+        typename V::vf centre;
+        for (int l = 0; l < C * R; ++l) centre[l] = float(l % C) + 0.5f;
+        return centre + float(C * b);
+    }
+    // s.y minus the pixel centres' rows of the band from row py, lane by lane (a float when
+    // the band is one row), and which of those rows are in s's box.
+    static auto band_dy(const TileSplat& s, int py) {
+        if constexpr (R == 1) {
+            return s.y - (float(py) + 0.5f);
+        } else {
+            typename V::vf row_offset;
+            for (int l = 0; l < C * R; ++l)
+                row_offset[l] = float(l / C) + 0.5f;  // py + (r + 0.5) == (py + r) + 0.5 exactly
+            return s.y - (float(py) + row_offset);
         }
-        const int b = k % kBlocks, py = s.row0 + R * (k / kBlocks);
-        const int p = at(C * b, py);
-        if constexpr (R == 1)
-            step(p, centre + float(C * b), s.y - (float(py) + 0.5f), V::splat_i(-1));
-        else
-            step(p, centre + float(C * b), s.y - (float(py) + row_offset), row <= s.row1 - py);
+    }
+    static typename V::vi band_valid(const TileSplat& s, int py) {
+        typename V::vi row;
+        for (int l = 0; l < C * R; ++l) row[l] = l / C;
+        return R == 1 ? V::splat_i(-1) : row <= s.row1 - py;
     }
 };
 
