@@ -83,7 +83,8 @@ struct Lanes {
 #ifdef __x86_64__
         if constexpr (L == 4) return (vf)_mm_max_ps((__m128)a, (__m128)b);
         if constexpr (L == 8) return (vf)_mm256_max_ps((__m256)a, (__m256)b);
-        if constexpr (L == 16) return (vf)_mm512_max_ps((__m512)a, (__m512)b);
+        if constexpr (L == 16)  // masked: the plain form's undefined source draws a warning
+            return (vf)_mm512_mask_max_ps((__m512)a, 0xffff, (__m512)a, (__m512)b);
 #endif
         return a > b ? a : b;
     }
@@ -91,7 +92,8 @@ struct Lanes {
 #ifdef __x86_64__
         if constexpr (L == 4) return (vf)_mm_min_ps((__m128)a, (__m128)b);
         if constexpr (L == 8) return (vf)_mm256_min_ps((__m256)a, (__m256)b);
-        if constexpr (L == 16) return (vf)_mm512_min_ps((__m512)a, (__m512)b);
+        if constexpr (L == 16)
+            return (vf)_mm512_mask_min_ps((__m512)a, 0xffff, (__m512)a, (__m512)b);
 #endif
         return a < b ? a : b;
     }
