@@ -30,8 +30,9 @@ STAMP_PATH = BUILD_DIR / (LIB_NAME + ".sha256")
 
 # No -march=native (the library must run on any x86-64; the hot loops carry AVX2 and
 # AVX-512 versions chosen at run time, csrc/dispatch.hpp) and no -ffast-math (it breaks the
-# NaN guards and the bitwise determinism). -ffp-contract=off keeps forward and backward
-# alpha tests bit-identical, and the images identical across those versions. -Wno-psabi:
+# NaN guards and the bitwise determinism). -ffp-contract=off leaves the fused operations to
+# the source, which writes the same ones in the AVX2 and AVX-512 versions, so that their
+# images are bitwise identical. -Wno-psabi:
 # vectors passed between the hot loops' helpers, all in one translation unit, draw notes
 # about compatibility with code compiled for other instruction sets.
 FLAGS = [

@@ -46,7 +46,7 @@ namespace baseline {
 #define AH_X86_DISPATCH 1
 namespace avx2 {
 #pragma GCC push_options
-#pragma GCC target("avx2")
+#pragma GCC target("avx2,fma")
 #include "projection_lanes.hpp"
 #include "raster_lanes.hpp"
 #pragma GCC pop_options
@@ -71,7 +71,7 @@ inline bool isa_supported(int32_t isa) {
             return true;
 #ifdef AH_X86_DISPATCH
         case AH_ISA_AVX2:
-            return __builtin_cpu_supports("avx2");
+            return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
         case AH_ISA_AVX512:
             return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
                    __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl");

@@ -4,8 +4,9 @@
 // x 4 rows, AVX-512) at a time with GCC vector extensions (explicit, so the code vectorises
 // whatever the optimiser's heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once
 // per instruction set (dispatch.hpp picks one at run time); this file holds what they share.
-// Every lane runs the same float operations in the same order, so the images are bitwise
-// identical across the paths (gradients differ by the order of the lane sums only).
+// Every lane runs the same float operations in the same order, so the AVX2 and AVX-512 paths
+// give bitwise identical images (gradients differ by the order of the lane sums only); the
+// baseline path, without FMA, rounds the products of the fused operations separately.
 #pragma once
 
 #include <algorithm>

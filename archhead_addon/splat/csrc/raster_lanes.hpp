@@ -98,26 +98,40 @@ struct Lanes {
         return a < b ? a : b;
     }
 
+    static vf vec(vf x) { return x; }
+    static vf vec(float x) { return splat(x); }
+    // a b + c, fused (one rounding) on the AVX2 and AVX-512 paths. SSE2 has no FMA: the
+    // baseline path rounds twice, and its images differ from theirs by round-off.
+    template <class B, class A>
+    static vf fma(vf a, B b, A c) {
+#ifdef __x86_64__
+        if constexpr (L == 8)
+            return (vf)_mm256_fmadd_ps((__m256)a, (__m256)vec(b), (__m256)vec(c));
+        if constexpr (L == 16)
+            return (vf)_mm512_fmadd_ps((__m512)a, (__m512)vec(b), (__m512)vec(c));
+#endif
+        return a * b + c;
+    }
+
     // exp for the Gaussian falloff (Cephes expf polynomial, about 1 ulp, exp(0) == 1
     // exactly). NaN and large |x| map to the clamp bounds.
     static vf falloff_exp(vf x) {
         x = min(max(x, splat(-87.0f)), splat(88.0f));
-        const vf n = (x * 1.44269504088896341f + 12582912.0f) - 12582912.0f;  // round
-        vf r = x - n * 0.693359375f;
-        r = r - n * -2.12194440e-4f;
+        const vf n = fma(x, 1.44269504088896341f, 12582912.0f) - 12582912.0f;  // round
+        vf r = fma(n, -0.693359375f, x);
+        r = fma(n, 2.12194440e-4f, r);
         vf p = splat(1.9875691500e-4f);
-        p = p * r + 1.3981999507e-3f;
-        p = p * r + 8.3334519073e-3f;
-        p = p * r + 4.1665795894e-2f;
-        p = p * r + 1.6666665459e-1f;
-        p = p * r + 5.0000001201e-1f;
-        const vf y = p * (r * r) + r + 1.0f;
+        p = fma(p, r, 1.3981999507e-3f);
+        p = fma(p, r, 8.3334519073e-3f);
+        p = fma(p, r, 4.1665795894e-2f);
+        p = fma(p, r, 1.6666665459e-1f);
+        p = fma(p, r, 5.0000001201e-1f);
+        const vf y = fma(p, r * r, r) + 1.0f;
         const vi bits = (__builtin_convertvector(n, vi) + 127) << 23;
         return y * (vf)bits;
     }
 
-    // alpha of one Gaussian at L pixel centres; forward and backward share it so that
-    // their skip decisions agree bit for bit.
+    // alpha of one Gaussian at L pixel centres.
     struct Falloff {
         vf dx, power, vis, a;
         vi ok;  // power <= 0 and a >= 1/255 (also false for NaN)
@@ -128,7 +142,7 @@ struct Lanes {
     static Falloff falloff(const TileSplat& s, vf px_centre, DY dy) {
         Falloff f;
         f.dx = s.x - px_centre;
-        f.power = -0.5f * (s.ca * f.dx * f.dx + s.cc * dy * dy) - s.cb * f.dx * dy;
+        f.power = fma(fma(s.ca * f.dx, f.dx, s.cc * dy * dy), -0.5f, -(s.cb * f.dx * dy));
         f.vis = falloff_exp(f.power);
         const vf t = s.op * f.vis;
         f.a = min(t, splat(kAlphaMax));
@@ -178,10 +192,10 @@ struct Lanes {
         const vi stop = ok & (nT < kTransmittanceMin);
         const vi use = ok & ~stop;
         const vf w = use ? fo.a * Tp : splat(0.0f);
-        store(S.cr + p, load(S.cr + p) + w * s.r);
-        store(S.cg + p, load(S.cg + p) + w * s.g);
-        store(S.cb + p, load(S.cb + p) + w * s.b);
-        store(S.cz + p, load(S.cz + p) + w * s.z);
+        store(S.cr + p, fma(w, s.r, load(S.cr + p)));
+        store(S.cg + p, fma(w, s.g, load(S.cg + p)));
+        store(S.cb + p, fma(w, s.b, load(S.cb + p)));
+        store(S.cz + p, fma(w, s.z, load(S.cz + p)));
         store(S.T + p, use ? nT : Tp);
         store(S.live + p, lv & ~stop);
         vis = use ? fo.vis : splat(0.0f);
