@@ -264,26 +264,26 @@ struct Lanes {
         const vf Tj = load(S.T + p) * inv_one_minus;
         const vf pr = load(S.gr + p), pg = load(S.gg + p), pb = load(S.gb + p);
         const vf pz = load(S.gz + p);
-        const vf gp = pr * s.r + pg * s.g + pb * s.b + pz * s.z;
+        const vf gp = fma(pz, s.z, fma(pb, s.b, fma(pg, s.g, pr * s.r)));
         const vf w = a * Tj;
         const vf beh = load(S.behind + p);
-        const vf d_alpha = Tj * gp - beh * inv_one_minus;
-        store(S.behind + p, beh + w * gp);
+        const vf d_alpha = fma(Tj, gp, -(beh * inv_one_minus));
+        store(S.behind + p, fma(w, gp, beh));
         store(S.T + p, Tj);
-        M.d_r += pr * w;
-        M.d_g += pg * w;
-        M.d_b += pb * w;
-        M.d_z += pz * w;
+        M.d_r = fma(pr, w, M.d_r);
+        M.d_g = fma(pg, w, M.d_g);
+        M.d_b = fma(pb, w, M.d_b);
+        M.d_z = fma(pz, w, M.d_z);
         // alpha = min(0.99, op * vis): no gradient through the clamp
         const vf da = (t <= kAlphaMax) & ok ? d_alpha : splat(0.0f);
-        M.d_op += da * vis;
+        M.d_op = fma(da, vis, M.d_op);
         const vf d_pow = da * a;
         const vf wx = d_pow * dx, wy = d_pow * dy;
         M.m_x += wx;
         M.m_y += wy;
-        M.m_xx += wx * dx;
-        M.m_xy += wx * dy;
-        M.m_yy += wy * dy;
+        M.m_xx = fma(wx, dx, M.m_xx);
+        M.m_xy = fma(wx, dy, M.m_xy);
+        M.m_yy = fma(wy, dy, M.m_yy);
     }
 };
 
