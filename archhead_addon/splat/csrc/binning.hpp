@@ -94,9 +94,19 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
         for (int64_t k = n * c / chunks; k < n * (c + 1) / chunks; ++k) {
             int tx0, tx1, ty0, ty1;
             tiles_of(k, tx0, tx1, ty0, ty1);
-            for (int ty = ty0; ty <= ty1; ++ty)
-                for (int tx = tx0; tx <= tx1; ++tx) ++count[int64_t(ty) * B.tiles_x + tx];
-            first[k] = int64_t(ty0) * B.tiles_x + tx0;
+            const int64_t t = int64_t(ty0) * B.tiles_x + tx0;
+            const int w = tx1 - tx0, h = ty1 - ty0;
+            if (w <= 1 && h <= 1) {  // most Gaussians: 1 to 2 x 2 tiles, without branches
+                const int64_t down = h * int64_t(B.tiles_x);
+                ++count[t];
+                count[t + w] += w;
+                count[t + down] += h;
+                count[t + down + w] += w & h;
+            } else {
+                for (int ty = ty0; ty <= ty1; ++ty)
+                    for (int tx = tx0; tx <= tx1; ++tx) ++count[int64_t(ty) * B.tiles_x + tx];
+            }
+            first[k] = t;
             isects[k] = int64_t(tx1 - tx0 + 1) * (ty1 - ty0 + 1);
         }
     }
@@ -128,16 +138,34 @@ inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<in
 #pragma omp parallel for num_threads(chunks) schedule(static, 1)
     for (int c = 0; c < chunks; ++c) {
         int64_t* pos = &cursor[size_t(c) * n_tiles];
+        int32_t spare_id;  // where the branch-free case writes the tiles a Gaussian lacks
+        int64_t spare_slot;
         for (int64_t k = n * c / chunks; k < n * (c + 1) / chunks; ++k) {
             int tx0, tx1, ty0, ty1;
             tiles_of(k, tx0, tx1, ty0, ty1);
             int64_t e = B.isect_start[first[k]];  // its first slot
-            for (int ty = ty0; ty <= ty1; ++ty)
-                for (int tx = tx0; tx <= tx1; ++tx) {
-                    const int64_t p = pos[int64_t(ty) * B.tiles_x + tx]++;
-                    B.tile_ids[p] = B.sorted[k];
-                    B.slot_of[p] = e++;
+            const int32_t id = B.sorted[k];
+            const int w = tx1 - tx0, h = ty1 - ty0;
+            if (w <= 1 && h <= 1) {
+                const int64_t t = int64_t(ty0) * B.tiles_x + tx0, down = h * int64_t(B.tiles_x);
+                // its tiles in increasing order: t, t + 1 (if w), t + down (if h), both
+                const int64_t tiles[4] = {t, t + w, t + down, t + down + w};
+                const int has[4] = {1, w, h, w & h};
+                const int64_t slot[4] = {e, e + 1, e + 1 + w, e + 3};
+                for (int i = 0; i < 4; ++i) {
+                    int64_t& p = pos[tiles[i]];
+                    *(has[i] ? &B.tile_ids[0] + p : &spare_id) = id;
+                    *(has[i] ? &B.slot_of[0] + p : &spare_slot) = slot[i];
+                    p += has[i];
                 }
+            } else {
+                for (int ty = ty0; ty <= ty1; ++ty)
+                    for (int tx = tx0; tx <= tx1; ++tx) {
+                        const int64_t p = pos[int64_t(ty) * B.tiles_x + tx]++;
+                        B.tile_ids[p] = id;
+                        B.slot_of[p] = e++;
+                    }
+            }
         }
     }
 }
