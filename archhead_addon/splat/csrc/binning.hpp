@@ -1,4 +1,4 @@
-// One global depth sort, then binning into 16x16 tiles. Every step is deterministic and
+// One global depth sort, then binning into square tiles (16 or 32 pixels: Kernels::tile). Every step is deterministic and
 // independent of the thread count: a stable sort on the float64 depth (ties keep input
 // order), and counting passes whose output does not depend on how they are split.
 #pragma once
@@ -11,7 +11,7 @@
 
 namespace ah {
 
-constexpr int kTile = 16;
+constexpr int kMaxTile = 32;  // pixels: the largest tile of any compositing path
 
 // Stable sort of ids by positive float64 keys: an LSD radix sort (3 passes of 11 bits, the
 // counts of all passes in one read; a pass in which every key agrees is skipped) on their
@@ -61,7 +61,7 @@ inline std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& ids,
 // few nearby runs of slots, where depth order spread them over the whole array and the
 // backward's compositing loop stalled on the cache misses of its writes.
 struct Bins {
-    int tiles_x = 0, tiles_y = 0;
+    int tile = 0, tiles_x = 0, tiles_y = 0;  // tile: its edge in pixels
     std::vector<int32_t> sorted;    // visible Gaussians, front to back
     std::vector<int32_t> slot_ids;  // visible Gaussians by first tile, then front to back
     std::vector<int64_t> tile_start, isect_start;
@@ -73,16 +73,18 @@ struct Bins {
 // into `chunks` contiguous pieces counted and filled in parallel; each piece writes after
 // the pieces before it in every tile, so the lists equal the serial ones for any count.
 inline void bin_tiles(Bins& B, std::vector<int32_t> sorted, const std::vector<int32_t>& bbox,
-                      int width, int height, int chunks) {
-    B.tiles_x = (width + kTile - 1) / kTile;
-    B.tiles_y = (height + kTile - 1) / kTile;
+                      int width, int height, int tile, int chunks) {
+    B.tile = tile;
+    const int shift = __builtin_ctz(unsigned(tile));  // tile: a power of two
+    B.tiles_x = (width + tile - 1) / tile;
+    B.tiles_y = (height + tile - 1) / tile;
     const int64_t n_tiles = int64_t(B.tiles_x) * B.tiles_y;
     const int64_t n = int64_t(sorted.size());
     B.sorted = std::move(sorted);
     auto tiles_of = [&](int64_t k, int& tx0, int& tx1, int& ty0, int& ty1) {
         if (k + 16 < n) __builtin_prefetch(&bbox[4 * size_t(B.sorted[k + 16])]);  // random reads
         const int32_t* b = &bbox[4 * size_t(B.sorted[k])];
-        tx0 = b[0] / kTile, tx1 = b[1] / kTile, ty0 = b[2] / kTile, ty1 = b[3] / kTile;
+        tx0 = b[0] >> shift, tx1 = b[1] >> shift, ty0 = b[2] >> shift, ty1 = b[3] >> shift;
     };
     // cursor[c * n_tiles + t]: first holds chunk c's count in tile t, then its write position
     std::vector<int64_t> cursor(size_t(chunks) * n_tiles, 0);

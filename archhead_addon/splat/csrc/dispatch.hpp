@@ -27,7 +27,8 @@ typedef void (*VjpRangeFn)(const Camera&, const Gaussians&, const int32_t*, cons
                            int64_t, const GradOut&);
 
 struct Kernels {
-    int32_t isa;  // AH_ISA_*
+    int32_t isa;   // AH_ISA_*
+    int32_t tile;  // the compositing's tile edge in pixels
     ProjectRangeFn project_range;
     VjpRangeFn vjp_range;
     CompositeForwardFn composite_forward;
@@ -85,19 +86,27 @@ inline Kernels kernels_for(int32_t isa) {
     switch (isa) {
 #ifdef AH_X86_DISPATCH
         case AH_ISA_AVX512:
-            return {isa, avx512::ProjectLanes<8>::project_range, avx512::ProjectLanes<8>::vjp_range,
-                    avx512::Raster<avx512::BlockSteps<4, 4>>::composite_forward,
-                    avx512::Raster<avx512::BlockSteps<4, 4>>::composite_backward};
+            return {isa,
+                    32,
+                    avx512::ProjectLanes<8>::project_range,
+                    avx512::ProjectLanes<8>::vjp_range,
+                    avx512::Raster<avx512::BlockSteps<4, 4, 32>>::composite_forward,
+                    avx512::Raster<avx512::BlockSteps<4, 4, 32>>::composite_backward};
         case AH_ISA_AVX2:
-            return {isa, avx2::ProjectLanes<4>::project_range, avx2::ProjectLanes<4>::vjp_range,
-                    avx2::Raster<avx2::BlockSteps<4, 2>>::composite_forward,
-                    avx2::Raster<avx2::BlockSteps<4, 2>>::composite_backward};
+            return {isa,
+                    16,
+                    avx2::ProjectLanes<4>::project_range,
+                    avx2::ProjectLanes<4>::vjp_range,
+                    avx2::Raster<avx2::BlockSteps<4, 2, 16>>::composite_forward,
+                    avx2::Raster<avx2::BlockSteps<4, 2, 16>>::composite_backward};
 #endif
         default:
-            return {AH_ISA_BASELINE, baseline::ProjectLanes<2>::project_range,
+            return {AH_ISA_BASELINE,
+                    16,
+                    baseline::ProjectLanes<2>::project_range,
                     baseline::ProjectLanes<2>::vjp_range,
-                    baseline::Raster<baseline::BlockSteps<4, 1>>::composite_forward,
-                    baseline::Raster<baseline::BlockSteps<4, 1>>::composite_backward};
+                    baseline::Raster<baseline::BlockSteps<4, 1, 16>>::composite_forward,
+                    baseline::Raster<baseline::BlockSteps<4, 1, 16>>::composite_backward};
     }
 }
 

@@ -26,8 +26,6 @@
 
 namespace ah {
 
-constexpr int kTilePixels = kTile * kTile;
-
 // Where a Gaussian can pass the alpha test, row by row, so that the compositing skips the
 // steps outside its ellipse. With d = (x_mean - x, dy), q = d^T conic d is smallest over x
 // at x = x_mean + slope dy, and q <= q_max holds within sqrt(w2) of there, w2 = (q - g dy^2)
@@ -41,9 +39,9 @@ struct Span {
 };
 constexpr float kSpanMargin = 1.0f;  // pixels
 
-// A Gaussian as one tile reads it: 2D mean relative to the tile origin (small numbers keep
-// the float32 offsets accurate), conic, opacity, colour, depth, its Span, and the rows and
-// columns of the tile its box covers.
+// A Gaussian as one tile reads it: 2D mean relative to the tile's grid origin (TileFrame;
+// small numbers keep the float32 offsets accurate), conic, opacity, colour, depth, its Span,
+// and the rows and columns of the tile its box covers.
 struct TileSplat {
     float x, y, ca, cb, cc, op, r, g, b, z;
     Span span;
@@ -77,8 +75,8 @@ inline Span span_of(double x, double y, const float* conic, float q_max, const i
     const double ca = conic[0], cb = conic[1], cc = conic[2];
     // the largest |dx|, |dy| at any lane a step evaluates: its rows are the box's, its
     // columns at most a tile past the box's
-    const double X =
-        std::max(std::fabs(x - (bbox[0] - kTile + 0.5)), std::fabs(x - (bbox[1] + kTile + 0.5)));
+    const double X = std::max(std::fabs(x - (bbox[0] - kMaxTile + 0.5)),
+                              std::fabs(x - (bbox[1] + kMaxTile + 0.5)));
     const double Y = std::max(std::fabs(y - (bbox[2] + 0.5)), std::fabs(y - (bbox[3] + 0.5)));
     const double terms = ca * X * X + 2.0 * std::fabs(cb) * X * Y + cc * Y * Y;
     const double inv_ca = 1.0 / ca, slope = cb * inv_ca;
@@ -109,11 +107,21 @@ inline void splats_of(std::vector<Splat2D>& out, const Projected& P, const float
     }
 }
 
-// Gaussian p relative to the origin (ox, oy) of a tile, as the tile reads it.
-inline TileSplat tile_splat(const Splat2D& p, int ox, int oy) {
+// A tile: origin and edge in pixels, the image size. Float coordinates are taken from the
+// grid origin, the corner of the kMaxTile tile that holds it, whatever the path's tile size:
+// the same float32 values, so that the paths' images agree bit for bit.
+struct TileFrame {
+    int ox, oy, size, width, height;
+    int grid_x() const { return ox % kMaxTile; }  // the origin, from the grid origin
+    int grid_y() const { return oy % kMaxTile; }
+};
+
+// Gaussian p as tile f reads it.
+inline TileSplat tile_splat(const Splat2D& p, const TileFrame& f) {
+    const int ox = f.ox, oy = f.oy;
     TileSplat s;
-    s.x = float(p.x - ox);
-    s.y = float(p.y - oy);
+    s.x = float(p.x - (ox - f.grid_x()));
+    s.y = float(p.y - (oy - f.grid_y()));
     s.ca = p.ca;
     s.cb = p.cb;
     s.cc = p.cc;
@@ -124,9 +132,9 @@ inline TileSplat tile_splat(const Splat2D& p, int ox, int oy) {
     s.z = p.z;
     s.span = p.span;
     s.col0 = std::max(p.bbox[0] - ox, 0);
-    s.col1 = std::min(p.bbox[1] - ox, kTile - 1);
+    s.col1 = std::min(p.bbox[1] - ox, f.size - 1);
     s.row0 = std::max(p.bbox[2] - oy, 0);
-    s.row1 = std::min(p.bbox[3] - oy, kTile - 1);
+    s.row1 = std::min(p.bbox[3] - oy, f.size - 1);
     return s;
 }
 
@@ -140,10 +148,6 @@ struct StepRecords {
             data.resize(std::max<int64_t>(2 * int64_t(data.size()), size + n));
         return data.data() + size;
     }
-};
-
-struct TileFrame {
-    int ox, oy, width, height;  // tile origin in pixels, image size
 };
 
 constexpr int kLiveCheck = 16;  // Gaussians between checks for finished rows / tiles

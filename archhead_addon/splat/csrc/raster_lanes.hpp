@@ -158,14 +158,16 @@ struct Lanes {
         return c;
     }
 
-    // For each tile row py, the pixel centres [lo[py], hi[py]] (tile coordinates; lo > hi:
-    // none) where s may pass the alpha test (Span).
-    static void row_spans(const TileSplat& s, float* lo, float* hi) {
+    // For each row py of a tile of `rows` rows at (gx, gy) from its grid origin, the pixel
+    // centres [lo[py], hi[py]] (tile coordinates; lo > hi: none) where s may pass the alpha
+    // test (Span).
+    template <int rows>
+    static void row_spans(const TileSplat& s, int gx, int gy, float* lo, float* hi) {
         constexpr float inf = std::numeric_limits<float>::infinity();
         const Span& e = s.span;
-        for (int r = 0; r < kTile; r += L) {
-            const vf dy = s.y - lane_centres(r);
-            const vf c = s.x + e.slope * dy, w2 = (e.q - e.g * dy * dy) * e.inv_ca;
+        for (int r = 0; r < rows; r += L) {
+            const vf dy = s.y - lane_centres(gy + r);
+            const vf c = (s.x - float(gx)) + e.slope * dy, w2 = (e.q - e.g * dy * dy) * e.inv_ca;
             const vf w = sqrt(max(w2, splat(0.0f))) + kSpanMargin;
             const vf l = c - w, h = c + w;  // NaN only as inf - inf: the whole row
             store(lo + r, w2 < 0.0f ? splat(inf) : (l == l ? l : splat(-inf)));
@@ -287,7 +289,7 @@ struct Lanes {
     }
 };
 
-// The step layout: the tile stored block by block, C columns x (kTile + R - 1) rows each
+// The step layout: a tile of T x T pixels stored block by block, C columns x (T + R - 1) rows each
 // (R - 1 rows of padding), so that R consecutive rows of a block are C R contiguous values
 // and one step of L = C R lanes covers C columns x R rows starting at any row. A Gaussian
 // takes the steps of the blocks its box reaches in bands of R rows from its first row:
@@ -298,9 +300,10 @@ struct Lanes {
 // AVX-512: 4 x 4 (about 15 % fewer steps on faces than 8 x 2, as small Gaussians leave
 // less of a narrower block unused); AVX2: 4 x 2; baseline: 4 x 1, as SSE2 has no 8-lane
 // compares and GCC would split them into scalar code.
-template <int C, int R>
+template <int C, int R, int T>
 struct BlockSteps {
     typedef Lanes<C * R> V;
+    static constexpr int kTile = T;
     static constexpr int kRows = kTile + R - 1;
     static constexpr int kBlock = C * kRows;
     static constexpr int kBlocks = kTile / C;
@@ -320,22 +323,27 @@ struct BlockSteps {
             }
             return;
         }
+        static_assert(kTile % 16 == 0 && kTile <= 32, "16 rows at a time, 32 bits");
         for (int b = 0; b < kBlocks; ++b) {
-            uint64_t m = 0;
-            for (int i = 0; i < C * kTile / V::kWidth; ++i)
-                m |= uint64_t(V::bits(V::load(live + at(C * b, 0) + V::kWidth * i)))
-                     << (V::kWidth * i);
-            m = (m | m >> 1 | m >> 2 | m >> 3) & 0x1111111111111111u;  // row py: bit 4 py
-            m = (m | m >> 3) & 0x0303030303030303u;
-            m = (m | m >> 6) & 0x000f000f000f000fu;
-            m = (m | m >> 12) & 0x000000ff000000ffu;
-            rows[b] = uint32_t((m | m >> 24) & 0xffffu);
+            rows[b] = 0;
+            for (int g = 0; g < kTile / 16; ++g) {  // 16 rows (64 lanes) at a time
+                uint64_t m = 0;
+                for (int i = 0; i < 64 / V::kWidth; ++i)
+                    m |= uint64_t(V::bits(V::load(live + at(C * b, 16 * g) + V::kWidth * i)))
+                         << (V::kWidth * i);
+                m = (m | m >> 1 | m >> 2 | m >> 3) & 0x1111111111111111u;  // row py: bit 4 py
+                m = (m | m >> 3) & 0x0303030303030303u;
+                m = (m | m >> 6) & 0x000f000f000f000fu;
+                m = (m | m >> 12) & 0x000000ff000000ffu;
+                rows[b] |= uint32_t((m | m >> 24) & 0xffffu) << (16 * g);
+            }
         }
     }
     template <class Step>
-    [[gnu::always_inline]] static void steps(const TileSplat& s, const uint32_t* live, Step step) {
+    [[gnu::always_inline]] static void steps(const TileSplat& s, const TileFrame& f, const uint32_t* live,
+                                                Step step) {
         alignas(64) float lo[kTile], hi[kTile];
-        V::row_spans(s, lo, hi);
+        V::template row_spans<kTile>(s, grid_x(f), grid_y(f), lo, hi);
         for (int band = 0, py = s.row0; py <= s.row1; ++band, py += R) {
             const int rows = std::min(R, s.row1 - py + 1);
             float l = lo[py], h = hi[py];
@@ -346,31 +354,38 @@ struct BlockSteps {
             if (first > b0) b0 = first > b1 ? b1 + 1 : int(first) + (int(first) < first);  // ceil
             if (last < b1) b1 = last < b0 ? b0 - 1 : int(last);  // floor: 0 <= last < b1 here
             const uint32_t band_rows = ((1u << rows) - 1) << py;
-            const auto dy = band_dy(s, py);
+            const auto dy = band_dy(s, grid_y(f) + py);
             const typename V::vi valid = band_valid(s, py);
             for (int b = b0; b <= b1; ++b)
                 if (live[b] & band_rows)
-                    step(band * kBlocks + b, at(C * b, py), block_centres(b), dy, valid);
+                    step(band * kBlocks + b, at(C * b, py), block_centres(grid_x(f) + C * b), dy,
+                         valid);
         }
     }
     template <class Step>
-    [[gnu::always_inline]] static void masked_steps(const TileSplat& s, uint64_t mask, Step step) {
-        for (; mask; mask &= mask - 1) step_at(s, __builtin_ctzll(mask), step);
+    [[gnu::always_inline]] static void masked_steps(const TileSplat& s, const TileFrame& f, uint64_t mask,
+                                                       Step step) {
+        for (; mask; mask &= mask - 1) step_at(s, f, __builtin_ctzll(mask), step);
     }
     // Step k of s as step(p, centre, dy, valid); dy a float for one row.
     template <class Step>
-    [[gnu::always_inline]] static void step_at(const TileSplat& s, int k, Step&& step) {
+    [[gnu::always_inline]] static void step_at(const TileSplat& s, const TileFrame& f, int k, Step&& step) {
         const int b = unsigned(k) % kBlocks, py = s.row0 + R * int(unsigned(k) / kBlocks);
-        step(at(C * b, py), block_centres(b), band_dy(s, py), band_valid(s, py));
+        step(at(C * b, py), block_centres(grid_x(f) + C * b), band_dy(s, grid_y(f) + py),
+             band_valid(s, py));
     }
-    // The pixel centres' columns of block b, lane by lane.
-    static typename V::vf block_centres(int b) {
+    // The tile's origin from its grid origin (TileFrame): 0 where the tiles are the grid's.
+    static int grid_x(const TileFrame& f) { return kTile == kMaxTile ? 0 : f.grid_x(); }
+    static int grid_y(const TileFrame& f) { return kTile == kMaxTile ? 0 : f.grid_y(); }
+    // The pixel centres' columns of a block from column x (from the grid origin), lane by lane.
+    static typename V::vf block_centres(int x) {
         typename V::vf centre;
         for (int l = 0; l < C * R; ++l) centre[l] = float(l % C) + 0.5f;
-        return centre + float(C * b);
+        return centre + float(x);
     }
-    // s.y minus the pixel centres' rows of the band from row py, lane by lane (a float when
-    // the band is one row), and which of those rows are in s's box.
+    // s.y minus the pixel centres' rows of the band from row y (from the grid origin), lane by
+    // lane (a float when the band is one row); and which of the band's rows, from tile row
+    // py, are in s's box.
     static auto band_dy(const TileSplat& s, int py) {
         if constexpr (R == 1) {
             return s.y - (float(py) + 0.5f);
@@ -392,7 +407,7 @@ struct BlockSteps {
 template <class Layout>
 struct Raster {
     typedef typename Layout::V V;
-    static constexpr int kSize = Layout::kSize;
+    static constexpr int kSize = Layout::kSize, kTile = Layout::kTile;
 
     // Front-to-back compositing of one tile. Writes rgb/alpha/depth for the tile's pixels
     // and, for the backward pass, the per-pixel final transmittance, each Gaussian's mask of
@@ -429,7 +444,7 @@ struct Raster {
                 out = records->reserve(64 * (V::kWidth + 1));  // 64 steps at most
                 record_start[j] = out - records->data.data();
             }
-            Layout::steps(s, live_rows,
+            Layout::steps(s, f, live_rows,
                           [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
                               typename V::vf vis;
                               const typename V::vi use =
@@ -542,7 +557,7 @@ struct Raster {
             const TileSplat& s = G[j];
             const float* rec = records + record_start[j];
             typename V::Moments M;
-            Layout::masked_steps(s, step_mask[j],
+            Layout::masked_steps(s, f, step_mask[j],
                                  [&](int p, typename V::vf centre, auto dy, typename V::vi) {
                                      typename V::vf vis;
                                      rec = V::unpack(rec, vis);

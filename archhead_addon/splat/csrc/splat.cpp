@@ -165,7 +165,8 @@ void project_blocks(const Kernels& K, const Camera& cam, const Gaussians& g, int
 }
 
 TileFrame frame_of(const Context& C, int64_t tile) {
-    return TileFrame{int(tile % C.bins.tiles_x) * kTile, int(tile / C.bins.tiles_x) * kTile,
+    const int size = C.bins.tile;
+    return TileFrame{int(tile % C.bins.tiles_x) * size, int(tile / C.bins.tiles_x) * size, size,
                      C.params.width, C.params.height};
 }
 
@@ -184,7 +185,7 @@ void gather_tiles(Context& C) {
                 __builtin_prefetch(next);
                 __builtin_prefetch(next + 64);
             }
-            C.tile_splats[p] = tile_splat(C.splats[C.bins.tile_ids[p]], f.ox, f.oy);
+            C.tile_splats[p] = tile_splat(C.splats[C.bins.tile_ids[p]], f);
         }
     }
 }
@@ -211,7 +212,7 @@ void project_all(Context& C) {
     for (int64_t i = 0; i < n; ++i)
         if (C.visible[i]) C.ids.push_back(int32_t(i));
     bin_tiles(C.bins, sort_by_depth(C.ids, C.depth64), C.proj.bbox, C.params.width, C.params.height,
-              thread_count(C.params));
+              C.kernels.tile, thread_count(C.params));
     gather_tiles(C);
     C.t_bin = omp_get_wtime() - t1;
 }
