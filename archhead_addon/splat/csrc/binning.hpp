@@ -1,6 +1,6 @@
-// One global depth sort, then binning into square tiles (16 or 32 pixels: Kernels::tile). Every step is deterministic and
-// independent of the thread count: a stable sort on the float64 depth (ties keep input
-// order), and counting passes whose output does not depend on how they are split.
+// One global depth sort, then binning into square tiles (16 or 32 pixels: Kernels::tile). Every
+// step is deterministic and independent of the thread count: a stable sort on the float64 depth
+// (ties keep input order), and counting passes whose output does not depend on how they are split.
 #pragma once
 
 #include <algorithm>
@@ -62,8 +62,8 @@ inline std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& ids,
 // backward's compositing loop stalled on the cache misses of its writes.
 struct Bins {
     int tile = 0, tiles_x = 0, tiles_y = 0;  // tile: its edge in pixels
-    std::vector<int32_t> sorted;    // visible Gaussians, front to back
-    std::vector<int32_t> slot_ids;  // visible Gaussians by first tile, then front to back
+    std::vector<int32_t> sorted;             // visible Gaussians, front to back
+    std::vector<int32_t> slot_ids;           // visible Gaussians by first tile, then front to back
     std::vector<int64_t> tile_start, isect_start;
     std::vector<int32_t> tile_ids;
     std::vector<int64_t> slot_of;

@@ -53,18 +53,6 @@ struct Camera {
     }
 };
 
-// Screen footprint of a projected Gaussian, in pixels.
-struct Bounds {
-    double radius[2];
-    int32_t bbox[4];  // inclusive pixel ranges x0, x1, y0, y1
-    double q_max;     // the ellipse: samples with q = d^T conic d above it are never drawn
-};
-
-// What the screen bounds read of a projection: mean, dilated covariance diagonal, opacity.
-struct Footprint {
-    double x, y, covd_xx, covd_yy, opacity;
-};
-
 // float64 vector types of L lanes and their masks (see Vectors in raster.hpp).
 template <int L>
 struct DVectors;
@@ -89,16 +77,23 @@ struct Gaussians {
     const float *means, *log_scales, *quats, *logits;
 };
 
-// Where the projection writes, per Gaussian in input order (Projected's arrays in
-// raster.hpp, and the float64 depth for the sort); radii only for ah_splat_project.
+struct Splat2D;  // raster.hpp
+
+// Where the projection writes, per Gaussian in input order: ah_splat_project's arrays, zeroed
+// by the caller (null in the forward), or the forward's (null in ah_splat_project): every
+// Gaussian's visible flag and a visible one's box (inclusive pixel ranges x0, x1, y0, y1),
+// float64 depth (for the sort) and Splat2D (its colour from colors; its Span the box's
+// unless ellipse).
 struct ProjectOut {
     double* mean2d;
     float *conic, *opacity, *depth;
-    double* depth64;
-    int32_t* bbox;
-    float* q_max;
-    uint8_t* visible;
     int32_t* radii;
+    uint8_t* visible;
+    int32_t* bbox;
+    double* depth64;
+    Splat2D* splats;
+    const float* colors;
+    bool ellipse;
 };
 
 struct GradOut {
@@ -108,26 +103,5 @@ struct GradOut {
 // Gradients are computed in double; huge but finite ones (e.g. through the normalisation of
 // a 1e-30 quaternion) saturate instead of overflowing float32 to Inf.
 inline float saturate(double x) { return float(std::clamp(x, -double(FLT_MAX), double(FLT_MAX))); }
-
-// Bounds of a visible Gaussian; false when its box misses every pixel centre.
-inline bool screen_bounds(const Camera& cam, const Footprint& P, Bounds& B) {
-    // Opacity-aware extent: opacity * exp(-q/2) >= 1/255  <=>  q <= 2 ln(255 opacity); the
-    // tight axis-aligned box of that ellipse has half-widths k sqrt(covd_xx), k sqrt(covd_yy).
-    // The small margin keeps samples that pass the float32 threshold test inside the box.
-    B.q_max = 2.0 * std::log(255.0 * P.opacity) + 1e-3;
-    const double k = std::sqrt(B.q_max);
-    B.radius[0] = k * std::sqrt(P.covd_xx);
-    B.radius[1] = k * std::sqrt(P.covd_yy);
-    // Pixel i has its centre at i + 0.5: i in [ceil(m - r - 0.5), floor(m + r - 0.5)].
-    const double lox = std::clamp(P.x - B.radius[0] - 0.5, -1.0, double(cam.width));
-    const double hix = std::clamp(P.x + B.radius[0] - 0.5, -1.0, double(cam.width));
-    const double loy = std::clamp(P.y - B.radius[1] - 0.5, -1.0, double(cam.height));
-    const double hiy = std::clamp(P.y + B.radius[1] - 0.5, -1.0, double(cam.height));
-    B.bbox[0] = std::max(0, int32_t(std::ceil(lox)));
-    B.bbox[1] = std::min(cam.width - 1, int32_t(std::floor(hix)));
-    B.bbox[2] = std::max(0, int32_t(std::ceil(loy)));
-    B.bbox[3] = std::min(cam.height - 1, int32_t(std::floor(hiy)));
-    return B.bbox[0] <= B.bbox[1] && B.bbox[2] <= B.bbox[3];
-}
 
 }  // namespace ah

@@ -40,6 +40,47 @@ struct ProjectLanes {
         return e * (vd)bits;
     }
 
+    // log for positive finite x (fdlibm's method, about 1 ulp): x = m 2^e with m in
+    // [sqrt(1/2), sqrt(2)), f = m - 1, s = f / (2 + f), log(m) = f - f^2/2 + s (f^2/2 + R(s^2)).
+    static vd vlog(vd x) {
+        const vm bits = (vm)x;
+        const vd m0 = (vd)((bits & 0x000fffffffffffffLL) | 0x3ff0000000000000LL);  // [1, 2)
+        const vm big = m0 > 1.4142135623730951;
+        const vd m = big ? m0 * 0.5 : m0;
+        // the biased exponent (1 .. 2047) as a double, exactly, through its bits
+        const vm biased = ((bits >> 52) & 0x7ff) - big;
+        const vd e = ((vd)(biased | 0x4330000000000000LL) - 4503599627370496.0) - 1023.0;
+        const vd f = m - 1.0, s = f / (2.0 + f), z = s * s, w = z * z;
+        const vd R = z * (6.666666666666735130e-01 +
+                          w * (2.857142874366239149e-01 +
+                               w * (1.818357216161805012e-01 + w * 1.479819860511658591e-01))) +
+                     w * (3.999999999940941908e-01 +
+                          w * (2.222219843214978396e-01 + w * 1.531383769920937332e-01));
+        const vd hfsq = 0.5 * f * f;
+        return e * 6.93147180369123816490e-01 -
+               ((hfsq - (s * (hfsq + R) + e * 1.90821492927058770002e-10)) - f);
+    }
+
+    static vd vceil(vd x) { return vround<_MM_FROUND_TO_POS_INF>(x); }
+    static vd vfloor(vd x) { return vround<_MM_FROUND_TO_NEG_INF>(x); }
+    template <int mode>
+    static vd vround(vd x) {
+#ifdef __x86_64__
+        if constexpr (L == 4) return (vd)_mm256_round_pd((__m256d)x, mode | _MM_FROUND_NO_EXC);
+        if constexpr (L == 8)  // masked: the plain form's undefined source draws a warning
+            return (vd)_mm512_mask_roundscale_pd((__m512d)x, 0xff, (__m512d)x,
+                                                 mode | _MM_FROUND_NO_EXC);
+#endif
+        for (int i = 0; i < L; ++i)
+            x[i] = mode == _MM_FROUND_TO_POS_INF ? std::ceil(x[i]) : std::floor(x[i]);
+        return x;
+    }
+    // x rounded to float32 and back
+    static vd f32(vd x) {
+        for (int i = 0; i < L; ++i) x[i] = double(float(x[i]));
+        return x;
+    }
+
     static vd sigmoid(vd x) {
         const vd e = vexp(-vabs(x));
         return x >= 0.0 ? 1.0 / (1.0 + e) : e / (1.0 + e);
@@ -290,33 +331,106 @@ struct ProjectLanes {
         return d;
     }
 
-    // Projects Gaussians [i0, i1) into out, whose arrays start zeroed (culled Gaussians
-    // leave them so).
+    // Screen footprint of L projected Gaussians, in pixels: the opacity-aware box, drawn (a
+    // visible Gaussian whose box holds a pixel centre), and the Span of each.
+    struct Footprint {
+        vd radius[2];
+        vd box[4];  // inclusive pixel ranges x0, x1, y0, y1 (whole numbers)
+        vm drawn;
+        vd span[4];  // Span: slope, g, inv_ca, q
+    };
+
+    static Footprint footprint(const Camera& cam, const Proj& P) {
+        Footprint F;
+        // opacity exp(-q/2) >= 1/255  <=>  q <= q_max = 2 ln(255 opacity); the tight
+        // axis-aligned box of that ellipse has half-widths sqrt(q_max covd_xx), sqrt(q_max
+        // covd_yy). The small margin keeps samples that pass the float32 threshold test
+        // inside the box. Pixel i has its centre at i + 0.5: i in [ceil(m - r - 0.5),
+        // floor(m + r - 0.5)].
+        const vd q_max = 2.0 * vlog(255.0 * P.opacity) + 1e-3;
+        const vd k = vsqrt(q_max);
+        const double size[2] = {double(cam.width), double(cam.height)};
+        for (int a = 0; a < 2; ++a) {
+            const vd m = P.mean2d[a];
+            F.radius[a] = k * vsqrt(P.covd[2 * a]);
+            F.box[2 * a] = vmax(vceil(vclamp(m - F.radius[a] - 0.5, -1.0, size[a])), splat(0.0));
+            F.box[2 * a + 1] =
+                vmin(vfloor(vclamp(m + F.radius[a] - 0.5, -1.0, size[a])), splat(size[a] - 1));
+        }
+        F.drawn = P.visible & (F.box[0] <= F.box[1]) & (F.box[2] <= F.box[3]);
+
+        // Span (raster.hpp), from the conic as the tiles read it (float32). The largest |dx|,
+        // |dy| at any lane a step evaluates: its rows are the box's, its columns at most a
+        // tile past the box's.
+        const vd ca = f32(P.conic[0]), cb = f32(P.conic[1]), cc = f32(P.conic[2]);
+        const vd x = P.mean2d[0], y = P.mean2d[1];
+        const vd X =
+            vmax(vabs(x - (F.box[0] - kMaxTile + 0.5)), vabs(x - (F.box[1] + kMaxTile + 0.5)));
+        const vd Y = vmax(vabs(y - (F.box[2] + 0.5)), vabs(y - (F.box[3] + 0.5)));
+        const vd terms = ca * X * X + 2.0 * vabs(cb) * X * Y + cc * Y * Y;
+        const vd inv_ca = 1.0 / ca, slope = cb * inv_ca;
+        F.span[0] = slope;
+        F.span[1] = cc - cb * slope;
+        F.span[2] = inv_ca;
+        F.span[3] = f32(q_max) + 1e-5 * terms;
+        return F;
+    }
+
+    // Lane l of F's span; the box's where `ellipse` is off or a coefficient is not finite.
+    static Span span_at(const Footprint& F, const vd& ca, int l, bool ellipse) {
+        const Span s{float(F.span[0][l]), float(F.span[1][l]), float(F.span[2][l]),
+                     float(F.span[3][l])};
+        const bool finite = std::isfinite(s.slope) && std::isfinite(s.g) &&
+                            std::isfinite(s.inv_ca) && std::isfinite(s.q);
+        if (ellipse && ca[l] > 0.0 && finite) return s;
+        return Span{0.0f, 0.0f, 1.0f, std::numeric_limits<float>::infinity()};
+    }
+
+    // Projects Gaussians [i0, i1) into out (ProjectOut; culled Gaussians leave
+    // ah_splat_project's arrays as they are).
     static void project_range(const Camera& cam, const Gaussians& g, int64_t i0, int64_t i1,
                               const ProjectOut& out) {
         for (int64_t b = i0; b < i1; b += L) {
             int32_t ids[L];
             const int count = int(std::min<int64_t>(L, i1 - b));
-            for (int l = 0; l < L; ++l) ids[l] = int32_t(b + std::min(l, count - 1));
+            for (int l = 0; l < count; ++l) ids[l] = int32_t(b + l);
+            for (int l = count; l < L; ++l) ids[l] = int32_t(b + count - 1);
             const Proj P = project(cam, gather(g, ids));
+            const Footprint F = footprint(cam, P);
+            const vd ca = f32(P.conic[0]);
             for (int l = 0; l < count; ++l) {
                 const int64_t i = b + l;
-                const Footprint fp{P.mean2d[0][l], P.mean2d[1][l], P.covd[0][l], P.covd[2][l],
-                                   P.opacity[l]};
-                Bounds B;
-                if (!P.visible[l] || !screen_bounds(cam, fp, B)) continue;
-                out.visible[i] = 1;
-                out.mean2d[2 * i] = fp.x;
-                out.mean2d[2 * i + 1] = fp.y;
-                for (int k = 0; k < 3; ++k) out.conic[3 * i + k] = float(P.conic[k][l]);
-                out.opacity[i] = float(P.opacity[l]);
-                out.depth[i] = float(P.tc[2][l]);
-                out.depth64[i] = P.tc[2][l];
-                for (int k = 0; k < 4; ++k) out.bbox[4 * i + k] = B.bbox[k];
-                out.q_max[i] = float(B.q_max);
-                if (out.radii)
+                const bool drawn = F.drawn[l] != 0;
+                if (out.visible) out.visible[i] = drawn;
+                if (!drawn) continue;
+                int32_t box[4];
+                for (int k = 0; k < 4; ++k) box[k] = int32_t(F.box[k][l]);
+                if (out.splats) {
+                    Splat2D& s = out.splats[i];
+                    s.x = P.mean2d[0][l];
+                    s.y = P.mean2d[1][l];
+                    s.ca = float(P.conic[0][l]);
+                    s.cb = float(P.conic[1][l]);
+                    s.cc = float(P.conic[2][l]);
+                    s.op = float(P.opacity[l]);
+                    s.r = out.colors[3 * i];
+                    s.g = out.colors[3 * i + 1];
+                    s.b = out.colors[3 * i + 2];
+                    s.z = float(P.tc[2][l]);
+                    s.span = span_at(F, ca, l, out.ellipse);
+                    std::copy_n(box, 4, s.bbox);
+                    std::copy_n(box, 4, out.bbox + 4 * i);
+                    out.depth64[i] = P.tc[2][l];
+                }
+                if (out.mean2d) {
+                    out.mean2d[2 * i] = P.mean2d[0][l];
+                    out.mean2d[2 * i + 1] = P.mean2d[1][l];
+                    for (int k = 0; k < 3; ++k) out.conic[3 * i + k] = float(P.conic[k][l]);
+                    out.opacity[i] = float(P.opacity[l]);
+                    out.depth[i] = float(P.tc[2][l]);
                     for (int k = 0; k < 2; ++k)
-                        out.radii[2 * i + k] = int32_t(std::ceil(B.radius[k]));
+                        out.radii[2 * i + k] = int32_t(std::ceil(F.radius[k][l]));
+                }
             }
         }
     }

@@ -48,17 +48,7 @@ struct TileSplat {
     int32_t row0, row1, col0, col1;
 };
 
-// Projected Gaussians in input order (SoA), as the rasteriser reads them.
-struct Projected {
-    std::vector<double> mean2d;  // 2 per Gaussian
-    std::vector<float> conic;    // 3
-    std::vector<float> opacity;
-    std::vector<float> depth;
-    std::vector<int32_t> bbox;  // 4: x0, x1, y0, y1 inclusive
-    std::vector<float> q_max;
-};
-
-// A Gaussian as the tiles read it (from Projected and the colours), one record each, in
+// A Gaussian as the tiles read it (ProjectLanes::project_range), one record each, in
 // input order (which keeps a tile's Gaussians close in memory where the input is ordered
 // by position, as a UV-parameterised avatar's is).
 struct Splat2D {
@@ -67,45 +57,6 @@ struct Splat2D {
     Span span;
     int32_t bbox[4];
 };
-
-// The Span of a Gaussian with mean (x, y), conic and box bbox; the box's where `ellipse` is
-// off or a coefficient is not finite.
-inline Span span_of(double x, double y, const float* conic, float q_max, const int32_t* bbox,
-                    bool ellipse) {
-    const double ca = conic[0], cb = conic[1], cc = conic[2];
-    // the largest |dx|, |dy| at any lane a step evaluates: its rows are the box's, its
-    // columns at most a tile past the box's
-    const double X = std::max(std::fabs(x - (bbox[0] - kMaxTile + 0.5)),
-                              std::fabs(x - (bbox[1] + kMaxTile + 0.5)));
-    const double Y = std::max(std::fabs(y - (bbox[2] + 0.5)), std::fabs(y - (bbox[3] + 0.5)));
-    const double terms = ca * X * X + 2.0 * std::fabs(cb) * X * Y + cc * Y * Y;
-    const double inv_ca = 1.0 / ca, slope = cb * inv_ca;
-    const Span s{float(slope), float(cc - cb * slope), float(inv_ca), float(q_max + 1e-5 * terms)};
-    const bool finite = std::isfinite(s.slope) && std::isfinite(s.g) && std::isfinite(s.inv_ca) &&
-                        std::isfinite(s.q);
-    if (ellipse && ca > 0.0 && finite) return s;
-    return Span{0.0f, 0.0f, 1.0f, std::numeric_limits<float>::infinity()};
-}
-
-// The records of Gaussians [0, n) (culled ones too: their records are never read).
-inline void splats_of(std::vector<Splat2D>& out, const Projected& P, const float* colors, int64_t n,
-                      bool ellipse) {
-    out.resize(n);
-    for (int64_t id = 0; id < n; ++id) {
-        const double x = P.mean2d[2 * id], y = P.mean2d[2 * id + 1];
-        const float* conic = &P.conic[3 * id];
-        const float* rgb = &colors[3 * id];
-        const int32_t* bbox = &P.bbox[4 * id];
-        Splat2D& s = out[id];
-        s.x = x, s.y = y;
-        s.ca = conic[0], s.cb = conic[1], s.cc = conic[2];
-        s.op = P.opacity[id];
-        s.r = rgb[0], s.g = rgb[1], s.b = rgb[2];
-        s.z = P.depth[id];
-        s.span = span_of(x, y, conic, P.q_max[id], bbox, ellipse);
-        std::copy_n(bbox, 4, s.bbox);
-    }
-}
 
 // A tile: origin and edge in pixels, the image size. Float coordinates are taken from the
 // grid origin, the corner of the kMaxTile tile that holds it, whatever the path's tile size:

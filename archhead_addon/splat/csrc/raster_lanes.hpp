@@ -105,8 +105,7 @@ struct Lanes {
     template <class B, class A>
     static vf fma(vf a, B b, A c) {
 #ifdef __x86_64__
-        if constexpr (L == 8)
-            return (vf)_mm256_fmadd_ps((__m256)a, (__m256)vec(b), (__m256)vec(c));
+        if constexpr (L == 8) return (vf)_mm256_fmadd_ps((__m256)a, (__m256)vec(b), (__m256)vec(c));
         if constexpr (L == 16)
             return (vf)_mm512_fmadd_ps((__m512)a, (__m512)vec(b), (__m512)vec(c));
 #endif
@@ -340,8 +339,8 @@ struct BlockSteps {
         }
     }
     template <class Step>
-    [[gnu::always_inline]] static void steps(const TileSplat& s, const TileFrame& f, const uint32_t* live,
-                                                Step step) {
+    [[gnu::always_inline]] static void steps(const TileSplat& s, const TileFrame& f,
+                                             const uint32_t* live, Step step) {
         alignas(64) float lo[kTile], hi[kTile];
         V::template row_spans<kTile>(s, grid_x(f), grid_y(f), lo, hi);
         for (int band = 0, py = s.row0; py <= s.row1; ++band, py += R) {
@@ -363,13 +362,14 @@ struct BlockSteps {
         }
     }
     template <class Step>
-    [[gnu::always_inline]] static void masked_steps(const TileSplat& s, const TileFrame& f, uint64_t mask,
-                                                       Step step) {
+    [[gnu::always_inline]] static void masked_steps(const TileSplat& s, const TileFrame& f,
+                                                    uint64_t mask, Step step) {
         for (; mask; mask &= mask - 1) step_at(s, f, __builtin_ctzll(mask), step);
     }
     // Step k of s as step(p, centre, dy, valid); dy a float for one row.
     template <class Step>
-    [[gnu::always_inline]] static void step_at(const TileSplat& s, const TileFrame& f, int k, Step&& step) {
+    [[gnu::always_inline]] static void step_at(const TileSplat& s, const TileFrame& f, int k,
+                                               Step&& step) {
         const int b = unsigned(k) % kBlocks, py = s.row0 + R * int(unsigned(k) / kBlocks);
         step(at(C * b, py), block_centres(grid_x(f) + C * b), band_dy(s, grid_y(f) + py),
              band_valid(s, py));

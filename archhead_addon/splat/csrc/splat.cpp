@@ -87,7 +87,7 @@ struct Context {
     bool recorded;    // the forward kept its step records (params.for_backward)
     int64_t n;
     std::vector<float> means, log_scales, quats, logits, colors;
-    Projected proj;
+    std::vector<int32_t> bbox;  // per Gaussian: x0, x1, y0, y1 (ProjectOut)
     Bins bins;
     std::vector<Splat2D> splats;         // per Gaussian, input order
     std::vector<TileSplat> tile_splats;  // per tile-list entry (bins.tile_ids)
@@ -192,26 +192,21 @@ void gather_tiles(Context& C) {
 
 void project_all(Context& C) {
     const int64_t n = C.n;
-    C.proj.mean2d.assign(2 * n, 0.0);
-    C.proj.conic.assign(3 * n, 0.0f);
-    C.proj.opacity.assign(n, 0.0f);
-    C.proj.depth.assign(n, 0.0f);
-    C.proj.bbox.assign(4 * n, 0);
-    C.proj.q_max.assign(n, 0.0f);
-    C.depth64.assign(n, 0.0);
-    C.visible.assign(n, 0);
+    C.bbox.resize(4 * n);
+    C.depth64.resize(n);
+    C.visible.resize(n);
+    C.splats.resize(n);
     const double t0 = omp_get_wtime();
-    const ProjectOut out{C.proj.mean2d.data(), C.proj.conic.data(), C.proj.opacity.data(),
-                         C.proj.depth.data(),  C.depth64.data(),    C.proj.bbox.data(),
-                         C.proj.q_max.data(),  C.visible.data(),    nullptr};
+    const ProjectOut out{nullptr,         nullptr,          nullptr,       nullptr,
+                         nullptr,         C.visible.data(), C.bbox.data(), C.depth64.data(),
+                         C.splats.data(), C.colors.data(),  C.ellipse};
     project_blocks(C.kernels, C.cam, inputs(C), n, out, thread_count(C.params));
-    splats_of(C.splats, C.proj, C.colors.data(), n, C.ellipse);
     const double t1 = omp_get_wtime();
     C.t_project = t1 - t0;
     C.ids.clear();
     for (int64_t i = 0; i < n; ++i)
         if (C.visible[i]) C.ids.push_back(int32_t(i));
-    bin_tiles(C.bins, sort_by_depth(C.ids, C.depth64), C.proj.bbox, C.params.width, C.params.height,
+    bin_tiles(C.bins, sort_by_depth(C.ids, C.depth64), C.bbox, C.params.width, C.params.height,
               C.kernels.tile, thread_count(C.params));
     gather_tiles(C);
     C.t_bin = omp_get_wtime() - t1;
@@ -331,12 +326,8 @@ int ah_splat_project(const ah_splat_params* params, int64_t n, const float* mean
     std::memset(depths, 0, sizeof(float) * n);
     std::memset(opacities, 0, sizeof(float) * n);
     std::memset(radii, 0, sizeof(int32_t) * 2 * n);
-    std::vector<double> depth64(n);
-    std::vector<int32_t> bbox(4 * n);
-    std::vector<float> q_max(n);
-    std::vector<uint8_t> visible(n);
-    const ProjectOut out{means2d,     conics,       opacities,      depths, depth64.data(),
-                         bbox.data(), q_max.data(), visible.data(), radii};
+    const ProjectOut out{means2d, conics,  opacities, depths,  radii, nullptr,
+                         nullptr, nullptr, nullptr,   nullptr, false};
     project_blocks(active_kernels(), cam, Gaussians{means, log_scales, quats, opacity_logits}, n,
                    out, thread_count(*params));
     return 0;
