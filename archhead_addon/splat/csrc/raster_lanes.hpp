@@ -40,13 +40,12 @@ struct Lanes {
     }
     static bool any(vi m) { return bits(m) != 0; }
 
-    // A step's record at out, returning the end: vis (0 off use). AVX-512: the lanes of use
-    // only, after their mask (the record of a 3 lane step: 4 values, not 16); writes up to
+    // A step's record at out, returning the end: vis (0 off the lanes of mask m). AVX-512:
+    // those lanes only, after m (the record of a 3 lane step: 4 values, not 16); writes up to
     // L + 1 values.
-    static float* pack(float* out, vi use, vf vis) {
+    static float* pack(float* out, uint32_t m, vf vis) {
 #ifdef __x86_64__
         if constexpr (L == 16) {
-            const uint32_t m = bits(use);
             std::memcpy(out, &m, sizeof m);
             store(out + 1, (vf)_mm512_maskz_compress_ps(__mmask16(m), (__m512)vis));
             return out + 1 + __builtin_popcount(m);
@@ -181,11 +180,34 @@ struct Lanes {
     };
 
     // Composites Gaussian s into the L pixels at p, those of them in `valid`; returns the
-    // lanes that composited it (-1), with their falloff in vis (0 in the other lanes).
+    // lanes that composited it (bit i: lane i), with their falloff in vis (0 in the other
+    // lanes).
     template <class DY>
-    static vi forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre, DY dy,
-                           vi valid, vf& vis) {
+    static uint32_t forward_step(const ForwardState& S, const TileSplat& s, int p, vf centre, DY dy,
+                                 vi valid, vf& vis) {
         const Falloff fo = falloff(s, centre, dy);
+#ifdef __x86_64__
+        if constexpr (L == 16) {  // the same operations on mask registers, stores masked
+            const __m512 a = (__m512)fo.a, Tp = (__m512)load(S.T + p);
+            const __m512i lv = (__m512i)load(S.live + p);
+            __mmask16 ok = _mm512_test_epi32_mask((__m512i)valid, lv);
+            ok = _mm512_mask_cmp_ps_mask(ok, (__m512)fo.power, _mm512_setzero_ps(), _CMP_LE_OQ);
+            ok = _mm512_mask_cmp_ps_mask(ok, a, _mm512_set1_ps(kAlphaMin), _CMP_GE_OQ);
+            const __m512 nT = _mm512_mul_ps(Tp, _mm512_sub_ps(_mm512_set1_ps(1.0f), a));
+            const __mmask16 stop =
+                _mm512_mask_cmp_ps_mask(ok, nT, _mm512_set1_ps(kTransmittanceMin), _CMP_LT_OQ);
+            const __mmask16 use = _kandn_mask16(stop, ok);
+            const vf w = (vf)_mm512_maskz_mul_ps(use, a, Tp);
+            store(S.cr + p, fma(w, s.r, load(S.cr + p)));
+            store(S.cg + p, fma(w, s.g, load(S.cg + p)));
+            store(S.cb + p, fma(w, s.b, load(S.cb + p)));
+            store(S.cz + p, fma(w, s.z, load(S.cz + p)));
+            _mm512_mask_storeu_ps(S.T + p, use, nT);
+            _mm512_mask_storeu_epi32(S.live + p, stop, _mm512_setzero_si512());
+            vis = (vf)_mm512_maskz_mov_ps(use, (__m512)fo.vis);
+            return use;
+        }
+#endif
         const vi lv = load(S.live + p);
         const vf Tp = load(S.T + p);
         const vi ok = fo.ok & lv & valid;
@@ -200,13 +222,7 @@ struct Lanes {
         store(S.T + p, use ? nT : Tp);
         store(S.live + p, lv & ~stop);
         vis = use ? fo.vis : splat(0.0f);
-        return use;
-    }
-
-    static int64_t count(vi used) {  // used: minus the number of lanes used, per lane
-        int64_t n = 0;
-        for (int i = 0; i < L; ++i) n -= used[i];
-        return n;
+        return bits(use);
     }
 
     struct BackwardState {
@@ -428,7 +444,7 @@ struct Raster {
             for (int px = 0; px < kTile && f.ox + px < f.width; ++px) live[Layout::at(px, py)] = -1;
         const typename V::ForwardState S{T, cr, cg, cb, cz, live};
         uint32_t live_rows[Layout::kGroups] = {};
-        typename V::vi used{};
+        int64_t used = 0;  // lanes that composited a sample
         int64_t steps = 0;
         for (int64_t j = 0; j < n; ++j) {
             if (j % kLiveCheck == 0) {
@@ -447,11 +463,10 @@ struct Raster {
             Layout::steps(s, f, live_rows,
                           [&](int k, int p, typename V::vf centre, auto dy, typename V::vi valid) {
                               typename V::vf vis;
-                              const typename V::vi use =
-                                  V::forward_step(S, s, p, centre, dy, valid, vis);
-                              used += use;
+                              const uint32_t use = V::forward_step(S, s, p, centre, dy, valid, vis);
+                              used += __builtin_popcount(use);
                               ++steps;
-                              if (V::any(use)) {
+                              if (use) {
                                   mask |= uint64_t(1) << k;
                                   if (out) out = V::pack(out, use, vis);
                               }
@@ -484,7 +499,7 @@ struct Raster {
                 T_final[o] = T[p];
             });
         lanes[0] = V::kWidth * steps;
-        lanes[1] = V::count(used);
+        lanes[1] = used;
     }
 
     // The tile's pixels inside the image, a block's row (4 contiguous pixels of the tile
