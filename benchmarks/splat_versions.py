@@ -1,7 +1,8 @@
 """Splat kernel, one scene, every version in one run:
-`python benchmarks/splat_versions.py [--before REV] [--opensplat DIR] [--quick]`.
+`python benchmarks/splat_versions.py [--before REV] [--opensplat DIR] [--gaussians N]
+[--size S] [--quick]`.
 
-The face-like scene (`scenes.face_scene`) at 60k Gaussians, 512², one thread. Rows, each
+The face-like scene (`scenes.face_scene`) at 60k Gaussians, 512² (or N, S²), one thread. Rows, each
 the best of --repeats forward and backward passes (wall clock around the call):
 - the kernel of git revision --before (default c8a0463, before issue 19), compiled from
   `git show` into a temporary folder;
@@ -237,7 +238,7 @@ def ideal_scene(width: int, height: int, n: int = 64) -> scenes.Scene:
 
 
 def report(args) -> str:
-    n, size = (3_000, 128) if args.quick else (N, SIZE)
+    n, size = (3_000, 128) if args.quick else (args.gaussians, args.size)
     scene = scenes.face_scene(n, size, size, seed=0)
     paths = kernel.supported_simd()
     samplers: dict = {}
@@ -306,6 +307,8 @@ def main(argv=None) -> None:
     parser.add_argument("--before", default=BEFORE, help="git revision, or 'none' to skip")
     parser.add_argument("--opensplat", help="OpenSplat checkout (default $ARCHHEAD_OPENSPLAT)")
     parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--gaussians", type=int, default=N, help=f"default {N:,}")
+    parser.add_argument("--size", type=int, default=SIZE, help=f"image side, default {SIZE}")
     parser.add_argument("--quick", action="store_true", help="3k Gaussians at 128²")
     args = parser.parse_args(argv)
     print(report(args))

@@ -1,9 +1,10 @@
-// Per-tile compositing, forward and backward. One thread owns a whole 16x16 tile and
-// walks its Gaussians in depth order; for each Gaussian it updates the pixels of the tile
-// that the Gaussian's ellipse reaches, 4 (4 x 1, baseline), 8 (4 x 2, AVX2) or 16 (4 columns
-// x 4 rows, AVX-512) at a time with GCC vector extensions (explicit, so the code vectorises
-// whatever the optimiser's heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once
-// per instruction set (dispatch.hpp picks one at run time); this file holds what they share.
+// Per-tile compositing, forward and backward. One thread owns a whole tile (32 x 32 pixels
+// on the AVX-512 path, 16 x 16 on the others: Kernels::tile) and walks its Gaussians in depth
+// order; for each Gaussian it updates the pixels of the tile that the Gaussian's ellipse
+// reaches, 4 (4 x 1, baseline), 8 (4 x 2, AVX2) or 16 (4 columns x 4 rows, AVX-512) at a
+// time with GCC vector extensions (explicit, so the code vectorises whatever the optimiser's
+// heuristics). `Raster<Layout>` (raster_lanes.hpp) is compiled once per instruction set
+// (dispatch.hpp picks one at run time); this file holds what they share.
 // Every lane runs the same float operations in the same order, so the AVX2 and AVX-512 paths
 // give bitwise identical images (gradients differ by the order of the lane sums only); the
 // baseline path, without FMA, rounds the products of the fused operations separately.
