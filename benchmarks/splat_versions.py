@@ -2,8 +2,8 @@
 `python benchmarks/splat_versions.py [--before REV] [--opensplat DIR] [--gaussians N]
 [--size S] [--quick]`.
 
-The face-like scene (`scenes.face_scene`) at 60k Gaussians, 512² (or N, S²), one thread. Rows, each
-the best of --repeats forward and backward passes (wall clock around the call):
+The face-like scene (`scenes.face_scene`) at 60k Gaussians, 512² (or N, S²), one thread.
+Rows, each the best of --repeats forward and backward passes (wall clock around the call):
 - the kernel of git revision --before (default c8a0463, before issue 19), compiled from
   `git show` into a temporary folder;
 - this tree's kernel on each compositing path the CPU runs (kernel.set_simd), with its

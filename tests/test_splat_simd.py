@@ -56,9 +56,9 @@ def test_gradients_match_reference_antialiased(simd):
 
 def test_paths_agree():
     """The FMA paths (AVX2, AVX-512) run the same fused float operations whatever the vector
-    width: bitwise identical images. The baseline path (SSE2 has no FMA) rounds products
-    separately: round-off, or one sample that a rounding takes across the 1/255 alpha
-    threshold."""
+    width and tile size (16 and 32 pixels): bitwise identical images. The baseline path
+    (SSE2 has no FMA) rounds products separately: round-off, or one sample that a rounding
+    takes across the 1/255 alpha threshold."""
     scene = scenes.face_scene(3000, width=72, height=56, seed=0)
     images = {}
     for name in kernel.supported_simd():
@@ -66,11 +66,13 @@ def test_paths_agree():
         images[name] = render(scene)[0]
     kernel.set_simd("auto")
     baseline = images.pop("baseline")
-    fused = list(images.values())
+    if not images:
+        pytest.skip("this CPU has no FMA path")
+    first = next(iter(images.values()))
     for name, raster in images.items():
-        for a, b in zip(raster, fused[0], strict=True):
+        for a, b in zip(raster, first, strict=True):
             assert np.array_equal(a, b), name
-    for a, b in zip(baseline, fused[0] if fused else baseline, strict=True):
+    for a, b in zip(baseline, first, strict=True):
         diff = np.abs(a - b)
         assert diff.max() <= 1 / 255 + 1e-6 and diff.mean() <= 1e-6
 

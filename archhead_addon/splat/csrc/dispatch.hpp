@@ -82,31 +82,29 @@ inline bool isa_supported(int32_t isa) {
     }
 }
 
+// The kernels of one instruction set: its projection and its compositing.
+template <class Project, class Raster>
+Kernels kernels_of(int32_t isa) {
+    return {isa,
+            Raster::kTile,
+            Project::project_range,
+            Project::vjp_range,
+            Raster::composite_forward,
+            Raster::composite_backward};
+}
+
 inline Kernels kernels_for(int32_t isa) {
     switch (isa) {
 #ifdef AH_X86_DISPATCH
         case AH_ISA_AVX512:
-            return {isa,
-                    32,
-                    avx512::ProjectLanes<8>::project_range,
-                    avx512::ProjectLanes<8>::vjp_range,
-                    avx512::Raster<avx512::BlockSteps<4, 4, 32>>::composite_forward,
-                    avx512::Raster<avx512::BlockSteps<4, 4, 32>>::composite_backward};
+            return kernels_of<avx512::ProjectLanes<8>,
+                              avx512::Raster<avx512::BlockSteps<4, 4, 32>>>(isa);
         case AH_ISA_AVX2:
-            return {isa,
-                    16,
-                    avx2::ProjectLanes<4>::project_range,
-                    avx2::ProjectLanes<4>::vjp_range,
-                    avx2::Raster<avx2::BlockSteps<4, 2, 16>>::composite_forward,
-                    avx2::Raster<avx2::BlockSteps<4, 2, 16>>::composite_backward};
+            return kernels_of<avx2::ProjectLanes<4>, avx2::Raster<avx2::BlockSteps<4, 2, 16>>>(isa);
 #endif
         default:
-            return {AH_ISA_BASELINE,
-                    16,
-                    baseline::ProjectLanes<2>::project_range,
-                    baseline::ProjectLanes<2>::vjp_range,
-                    baseline::Raster<baseline::BlockSteps<4, 1, 16>>::composite_forward,
-                    baseline::Raster<baseline::BlockSteps<4, 1, 16>>::composite_backward};
+            return kernels_of<baseline::ProjectLanes<2>,
+                              baseline::Raster<baseline::BlockSteps<4, 1, 16>>>(AH_ISA_BASELINE);
     }
 }
 
