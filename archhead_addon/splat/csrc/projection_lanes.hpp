@@ -61,18 +61,18 @@ struct ProjectLanes {
                ((hfsq - (s * (hfsq + R) + e * 1.90821492927058770002e-10)) - f);
     }
 
-    static vd vceil(vd x) { return vround<_MM_FROUND_TO_POS_INF>(x); }
-    static vd vfloor(vd x) { return vround<_MM_FROUND_TO_NEG_INF>(x); }
-    template <int mode>
+    static vd vceil(vd x) { return vround<true>(x); }
+    static vd vfloor(vd x) { return vround<false>(x); }
+    template <bool up>
     static vd vround(vd x) {
 #ifdef __x86_64__
-        if constexpr (L == 4) return (vd)_mm256_round_pd((__m256d)x, mode | _MM_FROUND_NO_EXC);
+        constexpr int mode =
+            (up ? _MM_FROUND_TO_POS_INF : _MM_FROUND_TO_NEG_INF) | _MM_FROUND_NO_EXC;
+        if constexpr (L == 4) return (vd)_mm256_round_pd((__m256d)x, mode);
         if constexpr (L == 8)  // masked: the plain form's undefined source draws a warning
-            return (vd)_mm512_mask_roundscale_pd((__m512d)x, 0xff, (__m512d)x,
-                                                 mode | _MM_FROUND_NO_EXC);
+            return (vd)_mm512_mask_roundscale_pd((__m512d)x, 0xff, (__m512d)x, mode);
 #endif
-        for (int i = 0; i < L; ++i)
-            x[i] = mode == _MM_FROUND_TO_POS_INF ? std::ceil(x[i]) : std::floor(x[i]);
+        for (int i = 0; i < L; ++i) x[i] = up ? std::ceil(x[i]) : std::floor(x[i]);
         return x;
     }
     // x rounded to float32 and back
