@@ -337,7 +337,8 @@ struct ProjectLanes {
         vd radius[2];
         vd box[4];  // inclusive pixel ranges x0, x1, y0, y1 (whole numbers)
         vm drawn;
-        vd span[4];  // Span: slope, g, inv_ca, q
+        vd span[4];      // Span: slope, g, inv_ca, q
+        vm ca_positive;  // the conic's first entry is positive (else the box's span)
     };
 
     static Footprint footprint(const Camera& cam, const Proj& P) {
@@ -373,16 +374,18 @@ struct ProjectLanes {
         F.span[1] = cc - cb * slope;
         F.span[2] = inv_ca;
         F.span[3] = f32(q_max) + 1e-5 * terms;
+        F.ca_positive = ca > 0.0;
         return F;
     }
 
-    // Lane l of F's span; the box's where `ellipse` is off or a coefficient is not finite.
-    static Span span_at(const Footprint& F, const vd& ca, int l, bool ellipse) {
+    // Lane l of F's span; the box's where `ellipse` is off, the conic's first entry is not positive
+    // or a coefficient is not finite.
+    static Span span_at(const Footprint& F, int l, bool ellipse) {
         const Span s{float(F.span[0][l]), float(F.span[1][l]), float(F.span[2][l]),
                      float(F.span[3][l])};
         const bool finite = std::isfinite(s.slope) && std::isfinite(s.g) &&
                             std::isfinite(s.inv_ca) && std::isfinite(s.q);
-        if (ellipse && ca[l] > 0.0 && finite) return s;
+        if (ellipse && F.ca_positive[l] && finite) return s;
         return Span{0.0f, 0.0f, 1.0f, std::numeric_limits<float>::infinity()};
     }
 
@@ -397,7 +400,6 @@ struct ProjectLanes {
             for (int l = count; l < L; ++l) ids[l] = int32_t(b + count - 1);
             const Proj P = project(cam, gather(g, ids));
             const Footprint F = footprint(cam, P);
-            const vd ca = f32(P.conic[0]);
             for (int l = 0; l < count; ++l) {
                 const int64_t i = b + l;
                 const bool drawn = F.drawn[l] != 0;
@@ -417,7 +419,7 @@ struct ProjectLanes {
                     s.g = out.colors[3 * i + 1];
                     s.b = out.colors[3 * i + 2];
                     s.z = float(P.tc[2][l]);
-                    s.span = span_at(F, ca, l, out.ellipse);
+                    s.span = span_at(F, l, out.ellipse);
                     std::copy_n(box, 4, s.bbox);
                     std::copy_n(box, 4, out.bbox + 4 * i);
                     out.depth64[i] = P.tc[2][l];
