@@ -67,6 +67,22 @@ def test_splat_versions_benchmark_prints_its_tables(repo_root):
     assert "| used / limit |" in out
 
 
+def test_splat_fill_replays_the_kernels_lanes(repo_root):
+    """The fill oracle's replay of the compositing uses the lanes the kernel used (its
+    float64 alpha test may differ from the kernel's float32 one at the threshold)."""
+    from archhead_addon.splat import kernel, scenes
+
+    scene = scenes.face_scene(3_000, 128, 128, seed=0)
+    ctx = kernel.forward(scene.gaussians.checked(), scene.settings(num_threads=1))[1]
+    kernel_used = ctx.stats()["lanes_used"]
+    out = _benchmark(repo_root, "splat_fill.py", "--gaussians", 3_000, "--size", 128)
+    used = int(re.search(r"Lanes used \(all geometries\): ([\d,]+)", out)[1].replace(",", ""))
+    assert abs(used - kernel_used) <= 1e-4 * kernel_used, (used, kernel_used)
+    rows = re.findall(r"^\| [^|]+ \| ([\d,]+) \| (\d+)% \|$", out, re.M)
+    assert len(rows) == 6
+    assert all(used <= int(n.replace(",", "")) and 0 < int(share) <= 100 for n, share in rows)
+
+
 def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_subject, tmp_path):
     from training_subject import write_config
 
