@@ -6,9 +6,10 @@ The share of the vector limit that `splat_versions.py` prints is (lanes used / e
 compositing in numpy (the kernel's projection, its alpha test, front to back per 32-pixel
 tile with its early stop) and counts, for each geometry, the lanes of an oracle that takes
 only the steps holding a lane that composites a sample: blocks of C x R pixels in bands from
-the entry's first such row (as the kernel's bands start at its first row), or 2 x 2 quads
-or single pixels packed 16 to a step. The kernel's own steps also take blocks its ellipse
-reaches without compositing there, so it evaluates more than its geometry's oracle.
+the entry's first such row (as the kernel's bands start at its first row), one block to a
+step or k of the entry's blocks packed into one step of 16 lanes. The kernel's own steps
+also take blocks its ellipse reaches without compositing there, so it evaluates more than
+its geometry's oracle.
 """
 
 from __future__ import annotations
@@ -21,10 +22,17 @@ from archhead_addon.splat import kernel, scenes
 
 TILE = 32  # the AVX-512 path's tile
 ALPHA_MIN, ALPHA_MAX, T_MIN = 1 / 255, 0.99, 1e-4  # projection.hpp
-BLOCKS = {"4 x 4 (AVX-512 step)": (4, 4), "8 x 2": (8, 2), "4 x 2 (AVX2 step)": (4, 2),
-          "4 x 1 (baseline step)": (4, 1)}  # fmt: skip
-PACKED = {"2 x 2 quads, 4 to a step": 2, "single pixels, 16 to a step": 1}
-LANES = 16
+# name: block columns, rows, blocks packed into one step (a step of C R k lanes)
+GEOMETRIES = {
+    "4 x 4 (AVX-512 step)": (4, 4, 1),
+    "8 x 2": (8, 2, 1),
+    "4 x 2 (AVX2 step)": (4, 2, 1),
+    "4 x 1 (baseline step)": (4, 1, 1),
+    "4 x 2 blocks, 2 to a step": (4, 2, 2),
+    "4 x 1 rows, 4 to a step": (4, 1, 4),
+    "2 x 2 quads, 4 to a step": (2, 2, 4),
+    "single pixels, 16 to a step": (1, 1, 16),
+}
 
 
 def samples(scene: scenes.Scene) -> dict[int, list]:
@@ -66,7 +74,7 @@ def cells(col: np.ndarray, row: np.ndarray) -> int:
 
 def lane_counts(tiles: dict[int, list]) -> tuple[int, dict[str, int]]:
     """Lanes used, and lanes evaluated per geometry's oracle."""
-    used, evaluated = 0, dict.fromkeys([*BLOCKS, *PACKED], 0)
+    used, evaluated = 0, dict.fromkeys(GEOMETRIES, 0)
     for entries in tiles.values():
         T = np.ones((TILE, TILE))
         for ys, xs, alpha in entries:
@@ -78,10 +86,9 @@ def lane_counts(tiles: dict[int, list]) -> tuple[int, dict[str, int]]:
                 continue
             ys, xs = ys[use], xs[use]
             used += len(ys)
-            for name, (C, R) in BLOCKS.items():
-                evaluated[name] += C * R * cells(xs // C, (ys - ys.min()) // R)
-            for name, q in PACKED.items():
-                evaluated[name] += LANES * -(-cells(xs // q, ys // q) * q * q // LANES)
+            for name, (C, R, k) in GEOMETRIES.items():
+                blocks = cells(xs // C, (ys - ys.min()) // R)
+                evaluated[name] += C * R * k * -(-blocks // k)
     return used, evaluated
 
 

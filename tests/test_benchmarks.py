@@ -79,7 +79,7 @@ def test_splat_fill_replays_the_kernels_lanes(repo_root):
     used = int(re.search(r"Lanes used \(all geometries\): ([\d,]+)", out)[1].replace(",", ""))
     assert abs(used - kernel_used) <= 1e-4 * kernel_used, (used, kernel_used)
     rows = re.findall(r"^\| [^|]+ \| ([\d,]+) \| (\d+)% \|$", out, re.M)
-    assert len(rows) == 6
+    assert len(rows) == 8
     assert all(used <= int(n.replace(",", "")) and 0 < int(share) <= 100 for n, share in rows)
 
 
