@@ -8,6 +8,8 @@ the extension's wheel in Blender).
 
 from __future__ import annotations
 
+import atexit
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -57,6 +59,7 @@ __all__ = [
     "resolution_for_lod",
     "restart_with_threads",
     "scene_avatars",
+    "scratch_folder",
     "script_args",
     "session",
     "time_calls",
@@ -74,6 +77,14 @@ CHECKOUT_REPO = "archhead_checkout"
 def script_args(argv: list[str]) -> list[str]:
     """A script's own arguments: after `--` under `blender -b --python`, else argv[1:]."""
     return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
+
+
+def scratch_folder(prefix: str = "archhead_") -> Path:
+    """A new temporary folder, removed with everything in it when this process exits (links
+    in it are removed, not followed)."""
+    folder = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
 
 
 def enable_addon() -> str:
@@ -98,7 +109,7 @@ def _checkout_extension() -> str:
             "ArchHead is not installed in this Blender: install the extension "
             "(make extension) and enable it"
         )
-    folder = Path(tempfile.mkdtemp(prefix="archhead_repo_"))
+    folder = scratch_folder("archhead_repo_")
     (folder / ADDON_ID).symlink_to(root, target_is_directory=True)
     bpy.context.preferences.extensions.repos.new(
         name=CHECKOUT_REPO, module=CHECKOUT_REPO, custom_directory=str(folder), source="USER"

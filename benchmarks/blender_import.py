@@ -14,8 +14,6 @@ import argparse
 import resource
 import subprocess
 import sys
-import tempfile
-from pathlib import Path
 
 import bpy
 import numpy as np
@@ -60,7 +58,7 @@ def main(argv):
 
 def measure(frames: int, expressions: int, mode: str) -> str:
     api.enable_addon()
-    folder = Path(tempfile.mkdtemp())
+    folder = api.scratch_folder("archhead_import_")
     path, warmup = folder / "bench.npz", folder / "warmup.npz"
     api.write_canonical(api.demo_sequence(frames), path)
     api.write_canonical(api.demo_sequence(5), warmup)

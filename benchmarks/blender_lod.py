@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 import bpy
@@ -45,7 +44,7 @@ def main(argv) -> None:
         parser.error("--sweep and --json go together")
 
     api.enable_addon()
-    folder = Path(tempfile.mkdtemp())
+    folder = api.scratch_folder("archhead_lod_")
     checkpoint = (
         Path(args.checkpoint)
         if args.checkpoint

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import bpy
@@ -60,7 +59,7 @@ def main(argv) -> None:
     from archhead_addon.flame import load_model
 
     api.enable_addon()
-    folder = Path(tempfile.mkdtemp(prefix="archhead_pair_"))
+    folder = api.scratch_folder("archhead_pair_")
     avatar = args.avatar
     if avatar is None:
         torch.manual_seed(0)

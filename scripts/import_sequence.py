@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import bpy
@@ -22,7 +21,7 @@ from archhead_blender import api
 
 
 def _write_demo_sequence() -> str:
-    path = Path(tempfile.mkdtemp(prefix="archhead_demo_")) / "demo.npz"
+    path = api.scratch_folder("archhead_demo_") / "demo.npz"
     api.write_canonical(api.demo_sequence(), path)
     return str(path)
 

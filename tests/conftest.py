@@ -78,6 +78,7 @@ def addon(extension_zip):
         for name in ("archhead_addon", "archhead_blender", "archhead-*.dist-info"):
             for path in site.glob(name):
                 shutil.rmtree(path)
+    shutil.rmtree(repo_dir, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

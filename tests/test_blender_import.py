@@ -1,6 +1,7 @@
 """Import exactness: Blender's evaluated mesh equals the FLAME forward pass; the imported
 camera projects like K, R, t; the script path saves a .blend; failures leave nothing."""
 
+import os
 import subprocess
 import sys
 
@@ -139,9 +140,13 @@ def test_failed_import_leaves_nothing(tmp_path, imported):
 
 
 def test_script_imports_and_saves_blend(tmp_path, repo_root):
+    """... and leaves no temporary folder behind (the checkout's extension repository is a
+    folder holding a link to the checkout: removed, the checkout kept)."""
     seq_path = tmp_path / "clip.npz"
     write_canonical(demo_sequence(frames=8), seq_path)
     out = tmp_path / "clip.blend"
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
     proc = subprocess.run(
         [
             sys.executable,
@@ -156,9 +161,12 @@ def test_script_imports_and_saves_blend(tmp_path, repo_root):
         capture_output=True,
         text=True,
         timeout=300,
+        env={**os.environ, "TMPDIR": str(scratch)},
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert out.stat().st_size > 100_000
+    assert not list(scratch.iterdir())
+    assert (repo_root / "blender_manifest.toml").is_file()
     bpy.ops.wm.open_mainfile(filepath=str(out))
     head = bpy.data.objects["clip"]
     assert (bpy.context.scene.frame_start, bpy.context.scene.frame_end) == (1, 7)  # 8 / stride 2
