@@ -399,9 +399,8 @@ struct BlockSteps {
         for (int l = 0; l < C * R; ++l) centre[l] = float(l % C) + 0.5f;
         return centre + float(x);
     }
-    // s.y minus the pixel centres' rows of the band from row y (from the grid origin), lane by
-    // lane (a float when the band is one row); and which of the band's rows, from tile row
-    // py, are in s's box.
+    // s.y minus the pixel centres' rows of the band from row py (from the grid origin), lane
+    // by lane (a float when the band is one row).
     static auto band_dy(const TileSplat& s, int py) {
         if constexpr (R == 1) {
             return s.y - (float(py) + 0.5f);
@@ -412,6 +411,7 @@ struct BlockSteps {
             return s.y - (float(py) + row_offset);
         }
     }
+    // Which lanes' rows of the band from tile row py are in s's box.
     static typename V::vi band_valid(const TileSplat& s, int py) {
         typename V::vi row;
         for (int l = 0; l < C * R; ++l) row[l] = l / C;
