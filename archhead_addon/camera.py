@@ -88,12 +88,30 @@ def blender_to_intrinsics(cam: BlenderCamera) -> np.ndarray:
     )
 
 
+def affine_inverse(m) -> np.ndarray:
+    """The inverse (float64) of a 4x4 affine matrix (last row 0, 0, 0, 1), from its 3x3 part's
+    cofactors; np.linalg.LinAlgError where that part is singular. Not np.linalg.inv, for the
+    cameras and objects inverted once a frame: numpy's OpenBLAS runs LAPACK on its threads even
+    for a 4x4, and they kept spinning after it, slowing the next decode or splat of a render
+    loop (docs/bench_decode.md)."""
+    m = np.asarray(m, np.float64)
+    a, t = m[:3, :3], m[:3, 3]
+    cof = np.cross(a[[1, 2, 0]], a[[2, 0, 1]])  # rows r1 x r2, r2 x r0, r0 x r1
+    det = float((a[0] * cof[0]).sum())
+    if not det or not np.isfinite(det):
+        raise np.linalg.LinAlgError(f"a singular or non-finite matrix (determinant {det})")
+    out = np.eye(4)
+    out[:3, :3] = cof.T / det
+    out[:3, 3] = -(out[:3, :3] * t).sum(axis=1)  # element-wise: no BLAS call either
+    return out
+
+
 def w2c_to_blender_matrix_world(w2c, flame_world: bool = True) -> np.ndarray:
     """Blender camera object matrix_world from an OpenCV world-to-camera matrix.
 
     `flame_world`: the w2c maps FLAME-space (y up) points; the result is in Blender's world.
     """
-    c2w = np.linalg.inv(np.asarray(w2c, dtype=np.float64))
+    c2w = affine_inverse(w2c)
     world = FLAME_TO_BLENDER if flame_world else np.eye(4)
     return world @ c2w @ CV_TO_BLENDER_CAMERA
 
@@ -103,7 +121,7 @@ def blender_matrix_world_to_w2c(matrix_world, flame_world: bool = True) -> np.nd
     m = np.asarray(matrix_world, dtype=np.float64).copy()
     m[:3, :3] /= np.linalg.norm(m[:3, :3], axis=0)
     world = FLAME_TO_BLENDER if flame_world else np.eye(4)
-    return np.linalg.inv(np.linalg.inv(world) @ m @ CV_TO_BLENDER_CAMERA)
+    return affine_inverse(affine_inverse(world) @ m @ CV_TO_BLENDER_CAMERA)
 
 
 def project(points, K, w2c) -> np.ndarray:

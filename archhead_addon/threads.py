@@ -99,7 +99,8 @@ def choose_openmp_waiting(environ=None) -> str:
 def one_blas_thread() -> Iterator[bool]:
     """Holds numpy's OpenBLAS to one thread until the block ends and yields True; yields
     False, changing nothing, where numpy's BLAS is not an OpenBLAS this process has loaded
-    (another BLAS, or no /proc to find it in). One block at a time: the count is global."""
+    (another BLAS, or no /proc to find it in). The count is global: threads take turns, and
+    a block may nest inside another of the same thread."""
     functions = _openblas_thread_functions()
     if functions is None:
         yield False
@@ -114,7 +115,7 @@ def one_blas_thread() -> Iterator[bool]:
             set_(before)
 
 
-_BLAS_LOCK = threading.Lock()
+_BLAS_LOCK = threading.RLock()
 # OpenBLAS's names as numpy's wheels build it: "64_" for 64-bit integers, numpy 2's with a
 # "scipy_" prefix.
 _OPENBLAS_NAMES = [

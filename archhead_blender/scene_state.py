@@ -10,7 +10,7 @@ import numpy as np
 
 from archhead_addon.avatar.culling import ViewFrustum
 from archhead_addon.avatar.scene_codes import FrameCodes, codes_from_rig
-from archhead_addon.camera import BlenderCamera
+from archhead_addon.camera import BlenderCamera, affine_inverse
 from archhead_addon.flame.model import JOINT_NAMES
 from archhead_addon.splat.blender_render import blender_camera_to_opencv
 
@@ -61,7 +61,7 @@ def camera_in_object(obj, scene, depsgraph):
         return None
     camera = np.array(scene.camera.evaluated_get(depsgraph).matrix_world)
     world = np.array(obj.evaluated_get(depsgraph).matrix_world)
-    return (np.linalg.inv(world) @ camera[:, 3])[:3]
+    return (affine_inverse(world) @ camera[:, 3])[:3]
 
 
 def blender_camera(scene) -> BlenderCamera:

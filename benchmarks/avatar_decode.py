@@ -9,7 +9,10 @@ built-in by default); the decode cost does not depend on the weights' values. "f
 the runtime's default, chunks of texels decoded on 2 threads; "1 thread" decodes them one
 after another with BLAS threading each product (the decode before issue 19). On cores
 shared with other jobs, the CPU time per decode split between this thread and the decoding
-threads (printed after the table) says what free cores would take.
+threads (printed after the table) says what free cores would take. Last, a render loop
+against the same loop with numpy's OpenBLAS held to one thread: where its threads ran (a
+camera's 4x4 inverse through LAPACK, FLAME's products outside the decode's hold), they kept
+spinning after the call and slowed the next decode or splat.
 """
 
 from __future__ import annotations
@@ -50,6 +53,39 @@ def _cpu_split(fn, repeats: int) -> tuple[float, float]:
         fn()
     mine = time.thread_time() - this
     return 1e3 * mine / repeats, 1e3 * (time.process_time() - process - mine) / repeats
+
+
+def render_loop(runtime, frames: list[dict], lod: float) -> tuple[float, float]:
+    """(decode, splat) median ms over the frames, each decoded and then splatted at 512²
+    (`evaluate.render.render_frame`, as the demo's clip and batch renders run them)."""
+    import numpy as np
+
+    from archhead_addon.evaluate.render import render_frame
+
+    K = np.array([[1024.0, 0, 256], [0, 1024.0, 256], [0, 0, 1]])  # lens 2 x image width
+    w2c = np.diag([1.0, -1.0, -1.0, 1.0])  # 0.5 m in front of the face (FLAME: y up)
+    w2c[2, 3] = 0.5
+    decode, splat = [], []
+    for codes in frames:
+        out = render_frame(runtime, lod, codes, K, w2c, (512, 512), (1.0, 1.0, 1.0))
+        decode.append(out.decode_ms)
+        splat.append(out.splat_ms)
+    return float(np.median(decode[1:])), float(np.median(splat[1:]))
+
+
+def blas_threads(count: int | None) -> int | None:
+    """Sets numpy's OpenBLAS thread count (None: leaves it) and returns the one before, or
+    None where numpy's BLAS is not an OpenBLAS this process has loaded."""
+    from archhead_addon.threads import _openblas_thread_functions
+
+    functions = _openblas_thread_functions()
+    if functions is None:
+        return None
+    get, set_ = functions
+    before = get()
+    if count is not None:
+        set_(count)
+    return before
 
 
 def main(argv=None) -> None:
@@ -137,6 +173,25 @@ def main(argv=None) -> None:
             f"\nl = {lod:.0f}, CPU per fp32 decode: this thread {mine:.1f} ms, the {threads} "
             f"decoding threads {others:.1f} ms; on {threads} free cores at least "
             f"{mine + others / threads:.1f} ms"
+        )
+    frames = [
+        {"expr": rng.normal(size=model.n_expr), "jaw": [0.1 * (i % 3), 0, 0]} for i in range(31)
+    ]
+    print(
+        "\n## A render loop: 30 frames, each decoded and then splatted at 512², median ms; "
+        "beside it the same loop with numpy's BLAS held to one thread throughout\n\n"
+        "| l | decode | splat | frame | frame, BLAS on one thread | ratio |\n"
+        "|---:|---:|---:|---:|---:|---:|"
+    )
+    for lod in (0.0, 1.0):
+        for _ in range(2):  # rounds alternate, so changing load hits both alike
+            free = render_loop(runtime, frames, lod)
+            before = blas_threads(1)
+            held = render_loop(runtime, frames, lod)
+            blas_threads(before)
+        print(
+            f"| {lod:.0f} | {free[0]:.1f} | {free[1]:.1f} | {sum(free):.1f} | {sum(held):.1f} "
+            f"| {sum(free) / sum(held):.2f}x |"
         )
     errors = runtime.precision_error(0.0, **codes)
     print(

@@ -29,6 +29,7 @@ def main(argv=None) -> None:
     import torch
 
     from archhead_addon.avatar.runtime import AvatarRuntime
+    from archhead_addon.camera import affine_inverse
     from archhead_addon.evaluate.__main__ import run_config
     from archhead_addon.evaluate.metrics import psnr
     from archhead_addon.evaluate.render import DRIVING_CODES
@@ -59,7 +60,7 @@ def main(argv=None) -> None:
             item = test[int(i)]
             codes = {k: item["codes"][k] for k in DRIVING_CODES if k in item["codes"]}
             g = runtime.decode(lod, **codes)
-            centre = np.linalg.inv(np.asarray(item["w2c"], np.float64))[:3, 3]
+            centre = affine_inverse(item["w2c"])[:3, 3]
             full = sh_to_rgb_numpy(degree, g.means - centre, g.sh)
             dc = sh_to_rgb_numpy(0, g.means - centre, g.sh[:, :1])
             shown = linear_to_srgb if space == "linear" else np.asarray

@@ -66,6 +66,9 @@ def test_numpys_openblas_is_held_to_one_thread_and_given_its_count_back():
     with one_blas_thread() as held:
         assert held and get() == 1
         assert float(np.ones((64, 64), np.float32) @ np.ones(64, np.float32) @ np.ones(64)) > 0
+        with one_blas_thread() as inner:  # a decode inside a decode (culling's reach) nests
+            assert inner and get() == 1
+        assert get() == 1
     assert get() == before
 
 

@@ -126,52 +126,56 @@ class AvatarRuntime:
             raise ValueError(f"sh_degree must be >= 0, got {sh_degree}")
         l, size = resolution_for_lod(lod, cfg.s_max, cfg.s_min)
         level = self.level(size, precision)
-        expr = None if expr is None else _code(expr, len(np.ravel(expr)), "expr")
-        head = forward_full(
-            self.head,
-            dtype=F32,
-            expr=expr,
-            neck=_code(neck, 3, "neck"),
-            jaw=_code(jaw, JAW_DIM, "jaw"),
-            eyes=_code(eyes, EYES_DIM, "eyes"),
-        )
-        rot = _code(rotation, 3, "rotation")
-        rot_m = axis_angle_to_matrix(rot).astype(F32)
-        j0 = head.joints[0, 0].astype(F32)[:, None]
-        shift = j0 + _code(translation, 3, "translation").astype(F32)[:, None]
-        # channel-major (3, N) from here on: every row a contiguous attribute
-        pos = np.einsum("nk,nkc->cn", level["bary"], head.vertices[0][level["vert_idx"]])
-        columns = None  # the texels decoded: all, or those the view keeps
-        if view is not None:
-            if "reach" not in level:
-                level["reach"] = self._reach(l, precision)
-            keep = np.flatnonzero(view.visible(rot_m @ (pos - j0) + shift, level["reach"]))
-            if len(keep) < CULL_WORTH * pos.shape[1]:
-                columns = keep
-                level = {
-                    k: a if k == "first" else a[..., keep] if k == "base_log_scale" else a[keep]
-                    for k, a in level.items()
-                }
-                pos = pos[:, keep]
-        drive_in = np.concatenate(
-            [
-                _code(expr, cfg.n_expr, "expr", pad=True),
-                _code(jaw, JAW_DIM, "jaw"),
-                _code(eyes, EYES_DIM, "eyes"),
-            ]
-        )
-        frame = _FrameOutputs(
-            cfg, pos, level["base_log_scale"], rot, rot_m, j0, shift, 3 * (degree + 1) ** 2
-        )
-        net.decode(
-            pos,
-            level.get("first"),
-            net.frame_bias(drive_in, l),
-            frame.colour_rows,
-            frame.write,
-            columns=columns,
-            threads=self.threads,
-        )
+        # The whole frame with BLAS held to one thread where the chunks decode on threads of
+        # their own: OpenBLAS threads that FLAME's products woke kept spinning after them and
+        # slowed render loops (benchmarks/avatar_decode.py, docs/bench_decode.md).
+        with one_blas_thread() if self.threads > 1 else nullcontext(False) as held:
+            expr = None if expr is None else _code(expr, len(np.ravel(expr)), "expr")
+            head = forward_full(
+                self.head,
+                dtype=F32,
+                expr=expr,
+                neck=_code(neck, 3, "neck"),
+                jaw=_code(jaw, JAW_DIM, "jaw"),
+                eyes=_code(eyes, EYES_DIM, "eyes"),
+            )
+            rot = _code(rotation, 3, "rotation")
+            rot_m = axis_angle_to_matrix(rot).astype(F32)
+            j0 = head.joints[0, 0].astype(F32)[:, None]
+            shift = j0 + _code(translation, 3, "translation").astype(F32)[:, None]
+            # channel-major (3, N) from here on: every row a contiguous attribute
+            pos = np.einsum("nk,nkc->cn", level["bary"], head.vertices[0][level["vert_idx"]])
+            columns = None  # the texels decoded: all, or those the view keeps
+            if view is not None:
+                if "reach" not in level:
+                    level["reach"] = self._reach(l, precision)
+                keep = np.flatnonzero(view.visible(rot_m @ (pos - j0) + shift, level["reach"]))
+                if len(keep) < CULL_WORTH * pos.shape[1]:
+                    columns = keep
+                    level = {
+                        k: a if k == "first" else a[..., keep] if k == "base_log_scale" else a[keep]
+                        for k, a in level.items()
+                    }
+                    pos = pos[:, keep]
+            drive_in = np.concatenate(
+                [
+                    _code(expr, cfg.n_expr, "expr", pad=True),
+                    _code(jaw, JAW_DIM, "jaw"),
+                    _code(eyes, EYES_DIM, "eyes"),
+                ]
+            )
+            frame = _FrameOutputs(
+                cfg, pos, level["base_log_scale"], rot, rot_m, j0, shift, 3 * (degree + 1) ** 2
+            )
+            net.decode(
+                pos,
+                level.get("first"),
+                net.frame_bias(drive_in, l),
+                frame.colour_rows,
+                frame.write,
+                columns=columns,
+                threads=self.threads if held else 1,
+            )
         return frame.gaussians(level["texel"], size)
 
     def _reach(self, lod: float, precision: str) -> np.ndarray:
@@ -289,7 +293,8 @@ class _Network:
         decoded them. The colour head's first `colour_rows` outputs only (its SH
         coefficients are coefficient-major). `columns`: the texels of `first` that the
         positions are (culling), gathered chunk by chunk rather than copied whole.
-        `threads` decode chunks at once."""
+        `threads` decode chunks at once, each product on one BLAS thread: more than one only
+        while the caller holds BLAS to one thread (`one_blas_thread`)."""
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
         layers = dict(self.layers)
         hidden, (w_out, b_out) = layers["colour"]
@@ -314,16 +319,15 @@ class _Network:
                 raw[name] = self.round(y)
             write(cols, raw)
 
-        # On `threads` threads with one BLAS thread each; in this thread alone, with BLAS
-        # threading each product, where BLAS cannot be held to one.
-        with one_blas_thread() if threads > 1 else nullcontext(False) as held:
-            out_product = _row_by_row if held else np.matmul
-            if held:
-                for _ in _pool(threads).map(chunk, _chunks(pos.shape[1], threads)):
-                    pass  # (raises a worker's exception)
-            else:
-                for cols in _chunks(pos.shape[1], 1):
-                    chunk(cols)
+        # On `threads` threads; in this thread alone, with BLAS threading each product, where
+        # BLAS cannot be held to one.
+        out_product = _row_by_row if threads > 1 else np.matmul
+        if threads > 1:
+            for _ in _pool(threads).map(chunk, _chunks(pos.shape[1], threads)):
+                pass  # (raises a worker's exception)
+        else:
+            for cols in _chunks(pos.shape[1], 1):
+                chunk(cols)
 
 
 class _FrameOutputs:

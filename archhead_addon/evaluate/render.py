@@ -10,6 +10,7 @@ import numpy as np
 
 from ..avatar.culling import ViewFrustum
 from ..avatar.runtime import AvatarRuntime
+from ..camera import affine_inverse
 from ..splat import kernel
 from ..splat.colour_space import display_background, linear_to_srgb
 from ..splat.sh import degree_from_coeffs, sh_to_rgb_numpy
@@ -52,7 +53,7 @@ def render_frame(
     watch = Stopwatch()
     space = runtime.config.colour_space
     sh = np.asarray(g.sh, np.float32)
-    centre = np.linalg.inv(np.asarray(w2c, np.float64))[:3, 3]
+    centre = affine_inverse(w2c)[:3, 3]
     colours = sh_to_rgb_numpy(degree_from_coeffs(sh.shape[1]), g.means - centre, sh)
     settings = kernel.RasterSettings(
         viewmat=np.asarray(w2c, np.float64),

@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..camera import affine_inverse
 from ..threads import thread_count
 from . import build
 from .frame import SplatFrame, check_array, from_gsplat_order
@@ -364,7 +365,7 @@ def render_frame(frame: SplatFrame, settings: RasterSettings) -> Raster:
     centre); depth is the expected depth (see the module docstring)."""
     g = frame.checked()
     if g.sh.ndim == 3:
-        centre = np.linalg.inv(np.asarray(settings.viewmat, np.float64))[:3, 3]
+        centre = affine_inverse(settings.viewmat)[:3, 3]
         rgb = sh_to_rgb_numpy(
             degree_from_coeffs(g.sh.shape[1]), g.means.astype(np.float64) - centre, g.sh
         )
