@@ -21,7 +21,7 @@ from archhead_addon.evaluate.__main__ import main
 from archhead_addon.evaluate.metrics import (
     SSIM_C1,
     SSIM_C2,
-    gaussian_window,
+    gaussian_kernel,
     l1,
     psnr,
     ssim,
@@ -39,8 +39,14 @@ def test_l1_and_psnr_of_a_constant_offset():
     assert psnr(a, a) == math.inf
 
 
+def gaussian_window() -> np.ndarray:
+    """SSIM's 11 x 11 window."""
+    g = gaussian_kernel().numpy()
+    return g[:, None] * g[None, :]
+
+
 def test_gaussian_window_is_normalised_with_sigma_one_and_a_half():
-    w = gaussian_window().numpy()
+    w = gaussian_window()
     assert w.shape == (11, 11) and w.sum() == pytest.approx(1.0)
     assert w[5, 5] / w[5, 6] == pytest.approx(math.exp(1 / (2 * 1.5**2)))  # sigma 1.5
     assert w[5, 5] / w[6, 6] == pytest.approx(math.exp(2 / (2 * 1.5**2)))  # separable
@@ -56,7 +62,7 @@ def test_ssim_of_flat_images_is_the_luminance_term():
 def test_ssim_of_one_window_by_hand():
     rng = np.random.default_rng(0)
     x, y = rng.random((11, 11, 1)), rng.random((11, 11, 1))
-    w = gaussian_window().numpy()[..., None]
+    w = gaussian_window()[..., None]
     mx, my = (w * x).sum(), (w * y).sum()
     vx, vy = (w * (x - mx) ** 2).sum(), (w * (y - my) ** 2).sum()
     cxy = (w * (x - mx) * (y - my)).sum()
@@ -70,6 +76,26 @@ def test_ssim_of_one_window_by_hand():
     assert ssim(torch.from_numpy(x), noisy) == pytest.approx(ssim(noisy, torch.from_numpy(x)))
     with pytest.raises(ValueError, match="11"):
         ssim(torch.zeros(8, 8, 3), torch.zeros(8, 8, 3))
+
+
+def test_ssim_averages_every_valid_window():
+    """Against the 2-D window slid over the image (the separable blur is only a speed-up)."""
+    rng = np.random.default_rng(1)
+    x, y = rng.random((40, 37, 3)), rng.random((40, 37, 3))
+    w = gaussian_window()
+
+    def blur(a):  # (H, W, C) -> the valid windows' weighted sums
+        windows = np.lib.stride_tricks.sliding_window_view(a, (11, 11), axis=(0, 1))
+        return np.einsum("hwcij,ij->hwc", windows, w)
+
+    mx, my = blur(x), blur(y)
+    vx, vy, cxy = blur(x * x) - mx**2, blur(y * y) - my**2, blur(x * y) - mx * my
+    expected = (
+        (2 * mx * my + SSIM_C1)
+        * (2 * cxy + SSIM_C2)
+        / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2))
+    ).mean()
+    assert ssim(torch.from_numpy(x), torch.from_numpy(y)) == pytest.approx(expected, rel=1e-12)
 
 
 @pytest.fixture(scope="module")

@@ -51,7 +51,7 @@ def evaluate_lods(
     for precision in precisions:
         for lod in lods:
             first = frames[0]
-            runtime.decode(lod, precision=precision, **_drive(first))
+            runtime.decode(lod, precision=precision, **frame_codes(first))
             scores, decode, splat = [], [], []
             for i, item in enumerate(frames):
                 out = render_frame(
@@ -77,7 +77,8 @@ def evaluate_lods(
     return results
 
 
-def _drive(item: dict) -> dict:
+def frame_codes(item: dict) -> dict:
+    """A dataset item's codes as `AvatarRuntime.decode` takes them (its shape is baked in)."""
     return {k: v for k, v in item["codes"].items() if k != "shape"}
 
 

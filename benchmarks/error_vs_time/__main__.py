@@ -156,11 +156,12 @@ def run(args) -> Path:
         f"{torch.get_num_threads()} threads. Command: `python -m benchmarks.error_vs_time "
         f"{' '.join(args.argv)}`.",
         "## Per level of detail\n\nDecode: the numpy runtime (Blender's path), median over "
-        f"the test frames. Kernel: SH colour + the C++ splat at {report.KERNEL_SIZE}², median "
-        f"of {args.repeats}. Blender update: setting the avatar's level of detail to a new "
-        "value through an evaluated depsgraph (handler, decode, point writes, Geometry Nodes; "
-        "`benchmarks/blender_lod.py --sweep`). Frame = fp32 decode + kernel. Errors: fp32 on the "
-        "test frames at the training resolution.\n\n" + report.lod_table(rows, update),
+        "the test frames decoded one after another. Kernel: SH colour + the C++ splat at "
+        f"{report.KERNEL_SIZE}², median of {args.repeats}. Blender update: setting the "
+        "avatar's level of detail to a new value through an evaluated depsgraph (handler, "
+        "decode, point writes, Geometry Nodes; `benchmarks/blender_lod.py --sweep`). Frame = "
+        "fp32 decode + kernel. Errors: fp32 on the test frames at the training resolution."
+        "\n\n" + report.lod_table(rows, update),
         f"![error against run time]({FIGURES[0]})",
         "## LOD 1 against LOD 0, beside the paper\n\n" + report.ratio_table(rows),
         "## LOD smoothness\n\nThe first test frame at neighbouring levels (fp32), mean "

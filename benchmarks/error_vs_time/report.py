@@ -64,7 +64,7 @@ def lod_table(rows: list[LodRow], update_ms: dict[float, float]) -> str:
         update = update_ms.get(row.lod)
         lines.append(
             f"| {a.lod:.2f} | {a.resolution} | {a.gaussians:,} | {100 * a.gaussians / top:.1f} %"
-            f" | {a.decode_ms:.1f} | {h.decode_ms:.1f} | {row.kernel_ms:.1f} | "
+            f" | {row.decode_ms['fp32']:.1f} | {row.decode_ms['fp16']:.1f} | {row.kernel_ms:.1f} | "
             f"{'-' if update is None else f'{update:.0f}'} | {row.frame_ms:.0f} | {a.l1:.4f} | "
             f"{a.psnr:.2f} | {a.ssim:.4f} | {a.st_lpips:.4f} | {h.psnr:.2f} |"
         )
@@ -156,7 +156,7 @@ def plot_error_vs_time(path: Path, rows: list[LodRow], title: str) -> None:
     """Test PSNR and L1 against one frame's run time (decode + kernel at 512²)."""
     series = {
         precision: [
-            (res.lod, res.decode_ms + r.kernel_ms, res.psnr, res.l1)
+            (res.lod, r.decode_ms[precision] + r.kernel_ms, res.psnr, res.l1)
             for res, r in ((getattr(r, precision), r) for r in rows)
         ]
         for precision in ("fp32", "fp16")

@@ -1,6 +1,6 @@
-"""What every level of detail costs and loses: test-frame error and decode time (fp32, fp16,
-through `evaluate.lods`), the splat kernel's time at 512 x 512, and the image change between
-neighbouring levels."""
+"""What every level of detail costs and loses: test-frame error (fp32, fp16, through
+`evaluate.lods`), decode time, the splat kernel's time at 512 x 512, and the image change
+between neighbouring levels."""
 
 from __future__ import annotations
 
@@ -10,18 +10,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from archhead_addon.avatar.runtime import AvatarRuntime
-from archhead_addon.evaluate.lods import LodResult, evaluate_lods
+from archhead_addon.evaluate.lods import LodResult, evaluate_lods, frame_codes
 from archhead_addon.evaluate.render import render_frame
+from archhead_addon.timing import Stopwatch
 
 KERNEL_SIZE = 512
 
 
 @dataclass
 class LodRow:
-    """One level of detail: the fp32 and fp16 evaluations and the kernel's time at 512²."""
+    """One level of detail: the fp32 and fp16 evaluations, decode and kernel times."""
 
     fp32: LodResult
     fp16: LodResult
+    decode_ms: dict[str, float]  # precision -> median over the test frames (decode_ms())
     kernel_ms: float  # SH colour + splat of the LOD's Gaussians at KERNEL_SIZE²
 
     @property
@@ -31,7 +33,7 @@ class LodRow:
     @property
     def frame_ms(self) -> float:
         """fp32 decode + kernel at 512²: one frame's run time."""
-        return self.fp32.decode_ms + self.kernel_ms
+        return self.decode_ms["fp32"] + self.kernel_ms
 
 
 def lod_steps(step: float) -> list[float]:
@@ -62,10 +64,24 @@ def measure_lods(
         LodRow(
             by_key[lod, "fp32"],
             by_key[lod, "fp16"],
+            {p: decode_ms(runtime, frames, lod, p) for p in ("fp32", "fp16")},
             kernel_ms(runtime, frames[0], size, background, lod, repeats),
         )
         for lod in lods
     ], first
+
+
+def decode_ms(runtime: AvatarRuntime, frames: list[dict], lod: float, precision: str) -> float:
+    """Median milliseconds of decoding the frames one after another, as Blender plays them
+    (the evaluation's own times have a metric's work between decodes, and were uneven from
+    one level to the next)."""
+    runtime.decode(lod, precision=precision, **frame_codes(frames[0]))  # per-S tables
+    times = []
+    for item in frames:
+        watch = Stopwatch()
+        runtime.decode(lod, precision=precision, **frame_codes(item))
+        times.append(1e3 * watch.seconds)
+    return statistics.median(times)
 
 
 def kernel_ms(
