@@ -73,21 +73,6 @@ def render_loop(runtime, frames: list[dict], lod: float) -> tuple[float, float]:
     return float(np.median(decode[1:])), float(np.median(splat[1:]))
 
 
-def blas_threads(count: int | None) -> int | None:
-    """Sets numpy's OpenBLAS thread count (None: leaves it) and returns the one before, or
-    None where numpy's BLAS is not an OpenBLAS this process has loaded."""
-    from archhead_addon.threads import _openblas_thread_functions
-
-    functions = _openblas_thread_functions()
-    if functions is None:
-        return None
-    get, set_ = functions
-    before = get()
-    if count is not None:
-        set_(count)
-    return before
-
-
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", help="FLAME model file (default: the built-in model)")
@@ -107,6 +92,7 @@ def main(argv=None) -> None:
     from archhead_addon.avatar.model import ArchHeadAvatar
     from archhead_addon.avatar.runtime import AvatarRuntime
     from archhead_addon.flame.model import load_model
+    from archhead_addon.threads import one_blas_thread
 
     model = load_model(args.model)
     if args.xatlas:
@@ -184,11 +170,10 @@ def main(argv=None) -> None:
         "|---:|---:|---:|---:|---:|---:|"
     )
     for lod in (0.0, 1.0):
-        for _ in range(2):  # rounds alternate, so changing load hits both alike
+        for _ in range(2):  # the first round warms both up; the second is printed
             free = render_loop(runtime, frames, lod)
-            before = blas_threads(1)
-            held = render_loop(runtime, frames, lod)
-            blas_threads(before)
+            with one_blas_thread():
+                held = render_loop(runtime, frames, lod)
         print(
             f"| {lod:.0f} | {free[0]:.1f} | {free[1]:.1f} | {sum(free):.1f} | {sum(held):.1f} "
             f"| {sum(free) / sum(held):.2f}x |"
