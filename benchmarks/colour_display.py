@@ -32,7 +32,7 @@ def main(argv=None) -> None:
     from archhead_addon.camera import affine_inverse
     from archhead_addon.evaluate.__main__ import run_config
     from archhead_addon.evaluate.metrics import psnr
-    from archhead_addon.evaluate.render import DRIVING_CODES
+    from archhead_addon.evaluate.render import driving_codes
     from archhead_addon.flame.model import load_model
     from archhead_addon.splat import kernel
     from archhead_addon.splat.colour_space import display_background, linear_to_srgb
@@ -58,7 +58,7 @@ def main(argv=None) -> None:
         scores, levels = [], []
         for i in picks:
             item = test[int(i)]
-            codes = {k: item["codes"][k] for k in DRIVING_CODES if k in item["codes"]}
+            codes = driving_codes(item["codes"])
             g = runtime.decode(lod, **codes)
             centre = affine_inverse(item["w2c"])[:3, 3]
             full = sh_to_rgb_numpy(degree, g.means - centre, g.sh)

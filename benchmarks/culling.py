@@ -53,7 +53,7 @@ def main(argv=None) -> None:
 
     from archhead_addon.avatar.culling import ViewFrustum
     from archhead_addon.avatar.runtime import AvatarRuntime
-    from archhead_addon.evaluate.render import DRIVING_CODES, render_frame
+    from archhead_addon.evaluate.render import driving_codes, render_frame
     from archhead_addon.flame.model import load_model
     from archhead_addon.train.dataset import FrameDataset
 
@@ -71,7 +71,7 @@ def main(argv=None) -> None:
         for lod in LODS:
             counts, ms, scores = [], [], []
             for item in frames:
-                codes = {k: item["codes"][k] for k in DRIVING_CODES if k in item["codes"]}
+                codes = driving_codes(item["codes"])
                 w2c = item["w2c"]
                 if camera != "tracked":
                     full = runtime.decode(lod, **codes)

@@ -19,9 +19,9 @@ import argparse
 import numpy as np
 
 from archhead_addon.splat import kernel, scenes
+from archhead_addon.splat.reference import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
 
 TILE = 32  # the AVX-512 path's tile
-ALPHA_MIN, ALPHA_MAX, T_MIN = 1 / 255, 0.99, 1e-4  # projection.hpp
 # name: block columns, rows, blocks packed into one step (a step of C R k lanes)
 GEOMETRIES = {
     "4 x 4 (AVX-512 step)": (4, 4, 1),
@@ -80,8 +80,8 @@ def lane_counts(tiles: dict[int, list]) -> tuple[int, dict[str, int]]:
         for ys, xs, alpha in entries:
             t = T[ys, xs]
             new_t = t * (1 - alpha)
-            use = (t > 0) & (new_t >= T_MIN)  # T = 0: the pixel stopped
-            T[ys, xs] = np.where(use, new_t, np.where(new_t < T_MIN, 0.0, t))
+            use = (t > 0) & (new_t >= TRANSMITTANCE_MIN)  # T = 0: the pixel stopped
+            T[ys, xs] = np.where(use, new_t, np.where(new_t < TRANSMITTANCE_MIN, 0.0, t))
             if not use.any():
                 continue
             ys, xs = ys[use], xs[use]

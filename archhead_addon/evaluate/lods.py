@@ -10,7 +10,7 @@ import torch
 
 from ..avatar.runtime import AvatarRuntime
 from .metrics import l1, psnr, ssim
-from .render import render_frame
+from .render import driving_codes, render_frame
 
 LODS = (0.0, 0.25, 0.5, 0.75, 1.0)
 PRECISIONS = ("fp32", "fp16")
@@ -51,7 +51,7 @@ def evaluate_lods(
     for precision in precisions:
         for lod in lods:
             first = frames[0]
-            runtime.decode(lod, precision=precision, **frame_codes(first))
+            runtime.decode(lod, precision=precision, **driving_codes(first["codes"]))
             scores, decode, splat = [], [], []
             for i, item in enumerate(frames):
                 out = render_frame(
@@ -75,11 +75,6 @@ def evaluate_lods(
                 )
             )
     return results
-
-
-def frame_codes(item: dict) -> dict:
-    """A dataset item's codes as `AvatarRuntime.decode` takes them (its shape is baked in)."""
-    return {k: v for k, v in item["codes"].items() if k != "shape"}
 
 
 def _scores(rgb: np.ndarray, target: np.ndarray, perceptual) -> tuple[float, ...]:

@@ -19,6 +19,11 @@ from ..timing import Stopwatch
 DRIVING_CODES = ("expr", "jaw", "neck", "eyes", "rotation", "translation")
 
 
+def driving_codes(codes: dict) -> dict:
+    """The codes that drive a decode (DRIVING_CODES present in `codes`; shape is baked in)."""
+    return {k: codes[k] for k in DRIVING_CODES if k in codes}
+
+
 @dataclass
 class RenderedFrame:
     rgb: np.ndarray  # (H,W,3) float32 over the background
@@ -46,9 +51,7 @@ def render_frame(
     """One frame at level `lod`: codes (DRIVING_CODES, others ignored), K (3,3) and OpenCV
     w2c (4,4) for an image of size (H, W); `view` culls before decoding (culling.py)."""
     watch = Stopwatch()
-    g = runtime.decode(
-        lod, precision=precision, view=view, **{k: codes[k] for k in DRIVING_CODES if k in codes}
-    )
+    g = runtime.decode(lod, precision=precision, view=view, **driving_codes(codes))
     decode_ms = 1e3 * watch.seconds
     watch = Stopwatch()
     space = runtime.config.colour_space

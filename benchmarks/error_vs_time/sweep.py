@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from archhead_addon.avatar.runtime import AvatarRuntime
-from archhead_addon.evaluate.lods import LodResult, evaluate_lods, frame_codes
-from archhead_addon.evaluate.render import render_frame
+from archhead_addon.evaluate.lods import LodResult, evaluate_lods
+from archhead_addon.evaluate.render import driving_codes, render_frame
 from archhead_addon.timing import Stopwatch
 
 KERNEL_SIZE = 512
@@ -75,11 +75,11 @@ def decode_ms(runtime: AvatarRuntime, frames: list[dict], lod: float, precision:
     """Median milliseconds of decoding the frames one after another, as Blender plays them
     (the evaluation's own times have a metric's work between decodes, and were uneven from
     one level to the next)."""
-    runtime.decode(lod, precision=precision, **frame_codes(frames[0]))  # per-S tables
+    runtime.decode(lod, precision=precision, **driving_codes(frames[0]["codes"]))  # per-S tables
     times = []
     for item in frames:
         watch = Stopwatch()
-        runtime.decode(lod, precision=precision, **frame_codes(item))
+        runtime.decode(lod, precision=precision, **driving_codes(item["codes"]))
         times.append(1e3 * watch.seconds)
     return statistics.median(times)
 
