@@ -2,7 +2,7 @@
 
     python -m archhead_addon.evaluate --avatar RUN/avatar.npz --data DIR --out EVAL
         [--lods 0,0.25,0.5,0.75,1 | --lods 0:1:0.05] [--precisions fp32,fp16]
-        [--resolution N] [--flame FILE] [--split test|train] [--frames N]
+        [--resolution N] [--flame FILE] [--split test|train] [--frames N] [--mask head|person]
         [--drive SEQ [--drive-lod L] [--drive-frames N]]
 
 Writes EVAL/metrics.csv and EVAL/metrics.md (L1, PSNR, SSIM, ST-LPIPS, Gaussian count and
@@ -11,9 +11,11 @@ EVAL/error_vs_time.png, EVAL/lods.png (the first test frame: truth, then each LO
 EVAL/sheet.png (up to SHEET_ROWS test frames spread over the split, each a row: truth, then
 the levels of SHEET_LODS that were evaluated).
 --drive renders the avatar driven by another tracked sequence (any supported format) into
-EVAL/reenact/ (cross-identity reenactment). The resolution defaults to the training run's
-(RUN/config.json). `--split train` scores the frames the avatar was fitted to (how well it
-fits, against how well it generalises); `--frames N` takes N frames evenly spread over the
+EVAL/reenact/ (cross-identity reenactment). Every metric is given over the whole frame
+(the masks leave the background exact) and over the tracked head without its neck. The
+resolution defaults to the training run's (RUN/config.json); so do the masks. `--split
+train` scores the frames the avatar was fitted to (how well it fits, against how well it
+generalises); `--frames N` takes N frames evenly spread over the
 split. Exit status 2: bad input.
 """
 
@@ -48,6 +50,16 @@ def _lods(text: str) -> list[float]:
     return lods
 
 
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"a whole number >= 1, got {text!r}")
+    return value
+
+
 def _precisions(text: str) -> list[str]:
     names = text.split(",")
     if not names or any(n not in ("fp32", "fp16") for n in names):
@@ -69,7 +81,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
     p.add_argument("--split", choices=("test", "train"), default="test")
-    p.add_argument("--frames", type=int, help="N frames evenly spread over the split")
+    p.add_argument(
+        "--frames",
+        type=_positive,
+        help="N frames evenly spread over the split (with --split train and the run's own "
+        "--frames N: the very frames it fitted)",
+    )
+    p.add_argument(
+        "--mask",
+        choices=("head", "person"),
+        help="which masks cut the truth: head and neck, or the whole person (default: the run's)",
+    )
     p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")
     p.add_argument("--drive-lod", type=float, default=0.0)
     p.add_argument("--drive-frames", type=int, help="render only the first N driving frames")
@@ -101,6 +123,11 @@ def run_holdout(args) -> str:
     return run_config(args).get("holdout", "last")
 
 
+def run_mask(args) -> str:
+    """Which masks cut the frames: --mask, else the run's (config.json), else head and neck."""
+    return args.mask or run_config(args).get("mask", "head")
+
+
 def evaluate(args) -> int:
     import numpy as np
 
@@ -116,10 +143,15 @@ def evaluate(args) -> int:
     model = load_model(args.flame)
     runtime = AvatarRuntime.load(args.avatar, model)
     test = FrameDataset(
-        args.data, run_resolution(args), model, split=args.split, holdout=run_holdout(args)
+        args.data,
+        run_resolution(args),
+        model,
+        split=args.split,
+        holdout=run_holdout(args),
+        mask=run_mask(args),
+        frames=args.frames,
     )
-    count = len(test) if args.frames is None else min(max(args.frames, 1), len(test))
-    frames = [test[int(i)] for i in np.linspace(0, len(test) - 1, count).round()]
+    frames = [test[i] for i in range(len(test))]
     first = {}
     sheet_rows = sorted({round(i) for i in np.linspace(0, len(frames) - 1, SHEET_ROWS)})
     sheet = {}

@@ -22,12 +22,17 @@ class LodResult:
     precision: str
     resolution: int  # UV resolution S
     gaussians: int
-    l1: float
+    l1: float  # means over the test frames, each over the whole (masked) frame
     psnr: float
     ssim: float
     st_lpips: float
     decode_ms: float  # medians over the test frames
     splat_ms: float
+    # over the tracked head without its neck (the dataset's `head`), where no mask reaches
+    psnr_head: float = float("nan")
+    ssim_head: float = float("nan")
+    st_lpips_head: float = float("nan")
+    needles: float = 0.0  # the share of Gaussians with an axis ratio above 10 (render.py)
 
     @property
     def render_ms(self) -> float:
@@ -52,33 +57,48 @@ def evaluate_lods(
         for lod in lods:
             first = frames[0]
             runtime.decode(lod, precision=precision, **driving_codes(first["codes"]))
-            scores, decode, splat = [], [], []
+            scores, decode, splat, needles = [], [], [], []
             for i, item in enumerate(frames):
                 out = render_frame(
                     runtime, lod, item["codes"], item["K"], item["w2c"], size, background, precision
                 )
                 if on_frame is not None:
                     on_frame(lod, precision, i, out.rgb)
-                scores.append(_scores(out.rgb, item["image"], perceptual))
+                scores.append(_scores(out.rgb, item["image"], item.get("head"), perceptual))
                 decode.append(out.decode_ms)
                 splat.append(out.splat_ms)
-            mean = np.mean(scores, axis=0)
+                needles.append(out.needles)
+            mean = [float(x) for x in np.nanmean(np.array(scores, np.float64), axis=0)]
             results.append(
                 LodResult(
                     lod,
                     precision,
                     runtime.resolution(lod),
                     out.gaussians,
-                    *map(float, mean),
+                    *mean[:4],
                     statistics.median(decode),
                     statistics.median(splat),
+                    *mean[4:],
+                    needles=float(np.mean(needles)),
                 )
             )
     return results
 
 
-def _scores(rgb: np.ndarray, target: np.ndarray, perceptual) -> tuple[float, ...]:
+def _scores(rgb: np.ndarray, target: np.ndarray, head, perceptual) -> tuple[float, ...]:
+    """L1, PSNR, SSIM, ST-LPIPS over the frame, then PSNR, SSIM and ST-LPIPS over `head`
+    (NaN without one). The head's ST-LPIPS compares the truth with the render pasted into it
+    there, so what lies outside the head does not count."""
     pred, gt = torch.from_numpy(np.clip(rgb, 0, 1)), torch.from_numpy(target)
+    whole = (l1(pred, gt), psnr(pred, gt), ssim(pred, gt), _perceptual(perceptual, pred, gt))
+    if head is None or not head.any():
+        return (*whole, np.nan, np.nan, np.nan)
+    region = torch.from_numpy(np.asarray(head, np.float32))
+    pasted = region[..., None] * pred + (1 - region[..., None]) * gt
+    inside = (psnr(pred, gt, region), ssim(pred, gt, region), _perceptual(perceptual, pasted, gt))
+    return (*whole, *inside)
+
+
+def _perceptual(perceptual, pred: torch.Tensor, gt: torch.Tensor) -> float:
     with torch.no_grad():
-        dist = float(perceptual(pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])[0])
-    return l1(pred, gt), psnr(pred, gt), ssim(pred, gt), dist
+        return float(perceptual(pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])[0])

@@ -21,9 +21,18 @@ def l1(pred: torch.Tensor, target: torch.Tensor) -> float:
     return float((pred - target).abs().mean())
 
 
-def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
-    """10 log10(1 / MSE) in dB (infinite for identical images)."""
-    mse = float((pred.double() - target.double()).square().mean())
+def psnr(pred: torch.Tensor, target: torch.Tensor, region: torch.Tensor | None = None) -> float:
+    """10 log10(1 / MSE) in dB (infinite for identical images); with `region` (H,W) weights,
+    the MSE over its pixels only (NaN where the region is empty)."""
+    error = (pred.double() - target.double()).square().mean(dim=-1)
+    if region is None:
+        mse = float(error.mean())
+    else:
+        weight = region.double()
+        total = float(weight.sum())
+        if total == 0:
+            return math.nan
+        mse = float((error * weight).sum()) / total
     return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
 
 
@@ -34,7 +43,20 @@ def gaussian_kernel(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch
     return g / g.sum()
 
 
-def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
+def ssim(pred: torch.Tensor, target: torch.Tensor, region: torch.Tensor | None = None) -> float:
+    """The mean SSIM over valid windows and channels; with `region` (H,W) weights, over the
+    windows centred in it (NaN where none is)."""
+    ssim_map = _ssim_map(pred, target).mean(dim=0)  # (H-10, W-10)
+    if region is None:
+        return float(ssim_map.mean())
+    half = SSIM_WINDOW // 2
+    weight = region.double()[half : region.shape[0] - half, half : region.shape[1] - half]
+    total = float(weight.sum())
+    return math.nan if total == 0 else float((ssim_map * weight).sum()) / total
+
+
+def _ssim_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """(C,H-10,W-10) float64: SSIM of each valid window."""
     if pred.shape != target.shape or pred.ndim != 3:
         raise ValueError(
             f"expected two (H,W,C) images, got {tuple(pred.shape)} and {tuple(target.shape)}"
@@ -57,4 +79,4 @@ def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
         * (2 * cxy + SSIM_C2)
         / ((mx**2 + my**2 + SSIM_C1) * (vx + vy + SSIM_C2))
     )
-    return float(ssim_map.mean())
+    return ssim_map[:, 0]

@@ -24,12 +24,16 @@ def driving_codes(codes: dict) -> dict:
     return {k: codes[k] for k in DRIVING_CODES if k in codes}
 
 
+NEEDLE_RATIO = 10.0  # a Gaussian whose longest axis is this many times its shortest
+
+
 @dataclass
 class RenderedFrame:
     rgb: np.ndarray  # (H,W,3) float32 over the background
     gaussians: int
     decode_ms: float
     splat_ms: float  # SH to RGB and the splat kernel
+    needles: float  # the share of Gaussians with an axis ratio above NEEDLE_RATIO
 
     @property
     def total_ms(self) -> float:
@@ -68,4 +72,12 @@ def render_frame(
     )
     raster = kernel.render(g.means, g.quats, g.log_scales, g.opacity_logits, colours, settings)
     rgb = linear_to_srgb(raster.rgb) if space == "linear" else raster.rgb
-    return RenderedFrame(rgb.astype(np.float32), len(g), decode_ms, 1e3 * watch.seconds)
+    splat_ms = 1e3 * watch.seconds
+    return RenderedFrame(rgb.astype(np.float32), len(g), decode_ms, splat_ms, needle_share(g))
+
+
+def needle_share(g) -> float:
+    """The share of the decoded Gaussians whose axes differ more than NEEDLE_RATIO times: the
+    streaks an artist sees as needles."""
+    spread = np.ptp(np.asarray(g.log_scales, np.float64), axis=1)
+    return float((spread > np.log(NEEDLE_RATIO)).mean()) if len(spread) else 0.0

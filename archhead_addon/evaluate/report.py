@@ -21,6 +21,10 @@ COLUMNS = (
     "decode_ms",
     "splat_ms",
     "render_ms",
+    "psnr_head",
+    "ssim_head",
+    "st_lpips_head",
+    "needles",
 )
 # Paper section 4.4: LOD 1 against LOD 0 (Gaussians, PSNR, SSIM, FPS) on its GPUs.
 PAPER_RATIOS = {
@@ -44,6 +48,10 @@ def _row(r: LodResult) -> dict:
         "decode_ms": r.decode_ms,
         "splat_ms": r.splat_ms,
         "render_ms": r.render_ms,
+        "psnr_head": r.psnr_head,
+        "ssim_head": r.ssim_head,
+        "st_lpips_head": r.st_lpips_head,
+        "needles": r.needles,
     }
 
 
@@ -58,14 +66,16 @@ def to_csv(results: list[LodResult]) -> str:
 
 def lod_table(results: list[LodResult]) -> str:
     lines = [
-        "| LOD | precision | S | Gaussians | L1 | PSNR (dB) | SSIM | ST-LPIPS | decode ms "
-        "| splat ms | total ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| LOD | precision | S | Gaussians | L1 | PSNR (dB) | SSIM | ST-LPIPS | head PSNR "
+        "| head SSIM | head ST-LPIPS | axis ratio > 10 | decode ms | splat ms | total ms |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         lines.append(
             f"| {r.lod:.2f} | {r.precision} | {r.resolution} | {r.gaussians:,} | "
             f"{r.l1:.4f} | {r.psnr:.2f} | {r.ssim:.4f} | {r.st_lpips:.4f} | "
+            f"{r.psnr_head:.2f} | {r.ssim_head:.4f} | {r.st_lpips_head:.4f} | "
+            f"{100 * r.needles:.1f} % | "
             f"{r.decode_ms:.1f} | {r.splat_ms:.1f} | {r.render_ms:.1f} |"
         )
     return "\n".join(lines)

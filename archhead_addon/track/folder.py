@@ -1,6 +1,7 @@
 """The tracker's output: a training data folder, complete or absent.
 
-It holds frames/, masks/, tracking.npz and tracking_report.json. There is no parts/: the
+It holds frames/, masks/ (head and neck, `head_mask`), masks_person/ (the whole person, for
+avatars with shoulders), tracking.npz and tracking_report.json. There is no parts/: the
 training dataset rasterizes the eye/mouth mask B from the tracked mesh at the training size
 (`train.parts_mask`), the same function the tracker would call, exact at any resolution.
 
@@ -23,7 +24,7 @@ import numpy as np
 
 from ..io.atomic import write_bytes_atomic
 from ..synthetic.png import encode_png
-from ..train.dataset import FRAMES_DIR, MASKS_DIR
+from ..train.dataset import FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR
 
 REPORT_FILE = "tracking_report.json"
 
@@ -37,7 +38,7 @@ def staged_folder(out) -> Iterator[Path]:
         shutil.rmtree(stale, ignore_errors=True)
     stage = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
     try:
-        for name in (FRAMES_DIR, MASKS_DIR):
+        for name in (FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR):
             (stage / name).mkdir()
         yield stage
     except BaseException:
@@ -57,12 +58,15 @@ def frame_name(number: int) -> str:
     return f"{number:05d}.png"
 
 
-def write_frame(stage: Path, number: int, rgb: np.ndarray, mask: np.ndarray) -> None:
-    """RGB uint8 (H,W,3) and the mask as floats in [0, 1] (H,W)."""
-    name = frame_name(number)
-    write_bytes_atomic(stage / FRAMES_DIR / name, encode_png(rgb, level=1))
+def write_frame(stage: Path, number: int, rgb: np.ndarray) -> None:
+    """RGB uint8 (H,W,3) into frames/."""
+    write_bytes_atomic(stage / FRAMES_DIR / frame_name(number), encode_png(rgb, level=1))
+
+
+def write_mask(folder: Path, number: int, mask: np.ndarray) -> None:
+    """A mask as floats in [0, 1] (H,W), as 8-bit grey."""
     grey = np.round(np.clip(mask, 0, 1) * 255).astype(np.uint8)
-    write_bytes_atomic(stage / MASKS_DIR / name, encode_png(grey, level=1))
+    write_bytes_atomic(folder / frame_name(number), encode_png(grey, level=1))
 
 
 def write_report(stage: Path, report: dict) -> None:

@@ -10,17 +10,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..flame.lbs import forward
 from ..flame.model import load_model
 from ..io.errors import InputError, warn_input
 from ..sequences import write_canonical
 from ..timing import Stopwatch
-from ..train.dataset import TRACKING_FILE
+from ..train.dataset import MASKS_DIR, PERSON_MASKS_DIR, TRACKING_FILE
 from ..train.images import resize
 from .detect import MAX_HAND_COVER, FaceDetector
 from .embedding import landmark_embedding
 from .fit import ClipFit, FitOptions, crop_intrinsics, fit_landmarks, fitted_sequence
-from .folder import staged_folder, write_frame, write_report
+from .folder import staged_folder, write_frame, write_mask, write_report
+from .head_mask import head_and_neck_masks
 from .media import open_frames
 from .photometric import PhotometricOptions, refine_photometric
 
@@ -154,13 +154,10 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     position = {int(numbers[i]): j for j, i in enumerate(kept)}
     out_size = (opt.size, opt.size)
     scale = opt.size / side
-    cut_rows = _neck_rows(
-        model, fit.codes, crop_intrinsics(fit.K, (x0, y0, side), opt.size), fit.w2c, out_size
-    )
     small = min(opt.photometric.size, opt.size) if opt.photometric else 0
     with staged_folder(out) as stage:
         watch = Stopwatch()
-        images, image_masks = [], []
+        images, image_masks, people = [], [], []
         for number, rgb in source.frames(total):
             j = position.get(number)
             if j is None:
@@ -169,8 +166,9 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             mask = masks[kept[j]][y0 : y0 + side, x0 : x0 + side].astype(np.float32) / 255.0
             frame = np.round(np.clip(resize(crop, out_size), 0, 255)).astype(np.uint8)
             mask = resize(mask, out_size)
-            mask[cut_rows[j] :] = 0.0  # clothes and shoulders below the head mesh
-            write_frame(stage, number, frame, mask)
+            write_frame(stage, number, frame)
+            write_mask(stage / PERSON_MASKS_DIR, number, mask)
+            people.append(np.round(np.clip(mask, 0, 1) * 255).astype(np.uint8))
             if small:
                 images.append(
                     np.round(np.clip(resize(crop, (small, small)), 0, 255)).astype(np.uint8)
@@ -203,6 +201,14 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             times["refine"] = watch.seconds
             fit = clip.result(fit.seconds + watch.seconds)
         K = crop_intrinsics(fit.K, (x0, y0, side), opt.size)
+        watch = Stopwatch()  # the head-and-neck masks follow the final fit
+        regions = head_and_neck_masks(model, fit.codes, K, fit.w2c, out_size)
+        for j, (number, person, inside) in enumerate(
+            zip(numbers[kept], people, regions, strict=True)
+        ):
+            write_mask(stage / MASKS_DIR, int(number), person / 255.0 * inside)
+            say(event="step", stage="masks", step=j + 1, total=n)
+        times["masks"] = watch.seconds
         seq = fitted_sequence(
             fit.codes,
             numbers[kept],
@@ -229,18 +235,6 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         )
         write_report(stage, report)
     return report
-
-
-def _neck_rows(model, codes, K, w2c, size, chunk: int = 64) -> np.ndarray:
-    """Per frame, the first image row below the whole head mesh (the mask ends there)."""
-    rows = []
-    for start in range(0, len(codes["expr"]), chunk):
-        part = {k: v[start : start + chunk] for k, v in codes.items() if k != "shape"}
-        verts = forward(model, shape=codes["shape"], **part)
-        cam = verts @ w2c[:3, :3].T + w2c[:3, 3]
-        y = (cam @ K.T)[..., 1] / cam[..., 2]
-        rows.append(np.clip(np.ceil(y.max(axis=1)), 0, size[0]).astype(np.int64))
-    return np.concatenate(rows)
 
 
 def _offset_mm(offset) -> dict | None:

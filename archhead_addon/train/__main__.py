@@ -1,5 +1,6 @@
 """Train an avatar: python -m archhead_addon.train --data DIR --out DIR [--config F]
-[--resume] [--progress-json] [--flame FILE] [--holdout last|interleaved]
+[--resume] [--progress-json] [--flame FILE] [--holdout last|interleaved] [--mask head|person]
+[--frames N]
 
 DIR holds frames/, optional masks/ and parts/, and tracking.npz (train/dataset.py). The run
 writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume), OUT/config.json and
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING
 from ..io.atomic import remove_stale_temporaries
 from ..io.errors import InputError, InputWarning
 from ..threads import choose_openmp_waiting, limit_thread_environment
-from .config import DEFAULT_PRESET, HOLDOUTS, PRESETS, TrainConfig
+from .config import DEFAULT_PRESET, HOLDOUTS, MASKS, PRESETS, TrainConfig
 from .progress import DONE, ERROR, START, Progress
 from .progress import INTERRUPTED as INTERRUPTED_EVENT
 from .run_folder import RunFolder
@@ -65,6 +66,18 @@ def parse_args(argv=None) -> argparse.Namespace:
         choices=HOLDOUTS,
         help="the test frames kept out of training: the last 10 %% (the paper's, default) or "
         "every tenth frame; overrides the config's 'holdout'",
+    )
+    p.add_argument(
+        "--mask",
+        choices=MASKS,
+        help="which masks cut the frames: the tracker's head and neck (default) or the whole "
+        "person (shoulders too); overrides the config's 'mask'",
+    )
+    p.add_argument(
+        "--frames",
+        type=int,
+        help="train on N frames of the training split, evenly spread (the quality ladder's "
+        "one- and ten-frame fits); overrides the config's 'frames'",
     )
     return p.parse_args(argv)
 
@@ -117,8 +130,8 @@ def setup(args, progress: Progress) -> Trainer:
     state = loop.load_state(state_path) if args.resume else None
     if state is None:
         config = TrainConfig.load(args.config)
-        if args.holdout is not None:
-            config = replace(config, holdout=args.holdout)
+        overrides = {"holdout": args.holdout, "mask": args.mask, "frames": args.frames}
+        config = replace(config, **{k: v for k, v in overrides.items() if v is not None})
     else:
         config = loop.state_config(state, state_path)
     if config.threads:  # held to the cores (TrainConfig.read)
@@ -126,7 +139,13 @@ def setup(args, progress: Progress) -> Trainer:
     device = loop.resolve_device(config.device)
     model = load_model(args.flame)
     dataset = FrameDataset(
-        args.data, config.resolution, model, split="train", holdout=config.holdout
+        args.data,
+        config.resolution,
+        model,
+        split="train",
+        holdout=config.holdout,
+        mask=config.mask,
+        frames=config.frames or None,
     )
     frames = loop.frames_on_device(dataset, device)
     if state is not None:

@@ -24,6 +24,7 @@ from ..threads import thread_count
 from .config_ranges import check_ranges
 
 HOLDOUTS = ("last", "interleaved")  # which frames test (dataset.split_indices)
+MASKS = ("head", "person")  # which masks cut the frames (dataset.MASK_FOLDERS)
 LPIPS_LEVELS = ("all", "one")  # which of a stage-2 step's renders the perceptual term sees
 
 CONFIG_DIR = Path(__file__).parent / "configs"
@@ -33,6 +34,7 @@ PRESETS = ("cpu", "cpu_short", "gpu_paper", "demo")
 DEFAULT_PRESET = "cpu"
 WHOLE_NUMBERS = (
     "resolution",
+    "frames",
     "stage1_steps",
     "stage2_steps",
     "lods_per_step",
@@ -82,6 +84,8 @@ class TrainConfig:
     threads: int = 0  # CPU threads of torch and the splat kernel; 0 = their default (all)
     device: str = "auto"  # "auto" (CUDA when present), "cpu" or "cuda"
     holdout: str = "last"  # the test frames (HOLDOUTS): the last 10 %, or every tenth
+    mask: str = "head"  # MASKS: the tracker's head-and-neck masks, or the whole person's
+    frames: int = 0  # train on this many frames of the split, evenly spread; 0: all of them
 
     def __post_init__(self):
         """Bad values raise InputError naming the key (`load` adds the file). JSON allows
@@ -122,6 +126,8 @@ class TrainConfig:
             "device",
             f"must be 'auto', 'cpu' or 'cuda', got {self.device!r}",
         )
+        _require(self.mask in MASKS, "mask", f"must be one of {MASKS}, got {self.mask!r}")
+        _require(self.frames >= 0, "frames", f"must be >= 0 (0: every frame), got {self.frames}")
         _require(
             self.holdout in HOLDOUTS,
             "holdout",

@@ -6,6 +6,8 @@ Folder layout (DATA):
 
     DATA/frames/<n>.png|.jpg|.jpeg|.exr   the video frames, numbered (00000.png, img_12.jpg)
     DATA/masks/<n>.<ext>                  optional: foreground alpha, the frames' numbers
+    DATA/masks_person/<n>.<ext>           optional: the whole person (mask="person"); the
+                                          tracker's masks/ keep head and neck only
     DATA/parts/<n>.<ext>                  optional: the eye/mouth mask B, the frames' numbers
     DATA/tracking.npz                     the tracked sequence (or pass `tracking=` a file or
                                           folder in any format `read_sequence` reads)
@@ -21,22 +23,27 @@ Folder layout (DATA):
   covers, enlarging is bilinear; pixel centres sit at +0.5 on both sides, so
   K' = diag(s_x, s_y, 1) K with s_x = W' / W_k and s_y = H' / H_k, where (H_k, W_k) is the
   size K was tracked at (`image_size`, else the frames' size).
-- Background: where a mask exists (a masks/ file, else the frame's own alpha channel), the
+- Background: where a mask exists (a masks/ file, or masks_person/ with mask="person", else
+  the frame's own alpha channel), the
   frame is composited onto `background` (RGB in [0,1], white by default) at full size
   before resizing: image = mask * frame + (1 - mask) * background. The renderer in training
   must clear to the same colour. Without masks, frames are used as they are and the mask
   is all ones.
 - B: the parts/ files when given (resized, soft at the edges); else the model's eye and
-  mouth labels rasterized with occlusion in each frame (`parts_mask`).
+  mouth labels rasterized with occlusion in each frame (`parts_mask`). `head`: the tracked
+  head without its neck (`flame.regions`), rasterized the same way, where the evaluation
+  scores the face alone.
 - Split (paper 4.1): the first 90 % of frames train, the last 10 % test (at least one each
   when there are two or more frames); `split="all"` gives every frame. With
   `holdout="interleaved"` every tenth frame tests instead (frames 4, 14, ...): test poses
   and expressions then lie among the training ones, which tells how well an avatar
   generalises within what it saw from how well it extrapolates to the clip's end.
+  `frames=N` keeps N frames of the split, evenly spread (the first and last among them):
+  the quality ladder fits one or ten frames alone, and scores those same frames.
 
 `FrameDataset(...)[i]` is a dict of float32 arrays: `image` (H,W,3) in [0,1], `mask` (H,W),
-`parts` (H,W), `K` (3,3), `w2c` (4,4), `codes` {shape, expr, jaw, neck, eyes, rotation,
-translation} (1-D each, fitted to the model's widths), plus `frame_id` and `index` (the
+`parts` (H,W), `head` (H,W), `K` (3,3), `w2c` (4,4), `codes` {shape, expr, jaw, neck, eyes,
+rotation, translation} (1-D each, fitted to the model's widths), plus `frame_id` and `index` (the
 frame's position in the whole sequence). With `cache=True` (default) frames are decoded
 once and kept (about 20 bytes per pixel); the arrays are then shared, so do not modify them.
 """
@@ -54,9 +61,11 @@ from ..sequences import Sequence, read_sequence
 from ..sequences.common import numbered_files
 from .config import HOLDOUTS
 from .images import IMAGE_SUFFIXES, image_size, read_image, read_mask, resize
-from .parts_mask import parts_mask
+from .parts_mask import surface_regions
 
 FRAMES_DIR, MASKS_DIR, PARTS_DIR, TRACKING_FILE = "frames", "masks", "parts", "tracking.npz"
+PERSON_MASKS_DIR = "masks_person"
+MASK_FOLDERS = {"head": MASKS_DIR, "person": PERSON_MASKS_DIR}  # a run's `mask` -> folder
 SPLITS = ("train", "test", "all")
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
 
@@ -187,6 +196,8 @@ class FrameDataset:
         *,
         split: str = "train",
         holdout: str = "last",
+        mask: str = "head",
+        frames: int | None = None,
         tracking=None,
         background=(1.0, 1.0, 1.0),
         cache: bool = True,
@@ -204,11 +215,20 @@ class FrameDataset:
         ):
             raise ValueError(f"background must be an RGB triple in [0, 1], got {background!r}")
         self.sequence = self._read_tracking(tracking).fit_to_model(model)
-        frames = numbered_images(self.root / FRAMES_DIR)
-        _match_tracking(frames, self.sequence, self.root / FRAMES_DIR)
-        self.frame_paths = [p for _, p in frames]
-        self.mask_paths = _companions(self.root / MASKS_DIR, frames, "mask")
-        self.parts_paths = _companions(self.root / PARTS_DIR, frames, "parts mask")
+        numbered = numbered_images(self.root / FRAMES_DIR)
+        _match_tracking(numbered, self.sequence, self.root / FRAMES_DIR)
+        self.frame_paths = [p for _, p in numbered]
+        if mask not in MASK_FOLDERS:
+            raise ValueError(f"mask must be one of {tuple(MASK_FOLDERS)}, got {mask!r}")
+        self.mask_paths = _companions(self.root / MASK_FOLDERS[mask], numbered, "mask")
+        if mask == "person" and self.mask_paths is None:
+            raise InputError(
+                self.root,
+                PERSON_MASKS_DIR,
+                "no whole-person masks here (the tracker writes them); track the video again "
+                "or train with the head-and-neck masks",
+            )
+        self.parts_paths = _companions(self.root / PARTS_DIR, numbered, "parts mask")
         if self.parts_paths is None and model.vertex_parts is None:
             warn_input(
                 model.source,
@@ -223,16 +243,21 @@ class FrameDataset:
         self.source_size = source
         self.size = target_size(resolution, source)
         self.K = self._scaled_intrinsics(source)
-        train, test = split_indices(len(frames), holdout)
-        self.indices = {"train": train, "test": test, "all": list(range(len(frames)))}[split]
+        train, test = split_indices(len(numbered), holdout)
+        self.indices = {"train": train, "test": test, "all": list(range(len(numbered)))}[split]
         if len(self.indices) == 0:
             raise InputError(
                 self.root,
                 None,
-                f"the '{split}' split of {len(frames)} frame(s) "
+                f"the '{split}' split of {len(numbered)} frame(s) "
                 "is empty: a train/test split needs at least two frames",
             )
-        self.split, self.holdout = split, holdout
+        if frames is not None:
+            if frames < 1:
+                raise ValueError(f"frames must be >= 1, got {frames}")
+            spread = np.linspace(0, len(self.indices) - 1, min(frames, len(self.indices)))
+            self.indices = [self.indices[int(i)] for i in np.unique(spread.round())]
+        self.split, self.holdout, self.mask = split, holdout, mask
         self._cache: dict[int, dict] | None = {} if cache else None
 
     def _read_tracking(self, tracking) -> Sequence:
@@ -295,15 +320,16 @@ class FrameDataset:
             rgb = mask[..., None] * rgb + (1 - mask[..., None]) * self.background
         mask = np.ones(self.source_size, np.float32) if mask is None else mask
         codes = {k: getattr(seq, k)[t] for k in CODES}
+        vertices = forward(self.model, static_offset=seq.static_offset, **codes)[0]
+        regions = surface_regions(self.model, vertices, self.K[t], seq.w2c[t], self.size)
+        parts = regions.parts
         if self.parts_paths is not None:
             parts = resize(read_mask(self.parts_paths[t]), self.size)
-        else:
-            vertices = forward(self.model, static_offset=seq.static_offset, **codes)[0]
-            parts = parts_mask(self.model, vertices, self.K[t], seq.w2c[t], self.size)
         return {
             "image": np.clip(resize(rgb.astype(np.float32), self.size), 0, 1),
             "mask": np.clip(resize(mask.astype(np.float32), self.size), 0, 1),
             "parts": parts.astype(np.float32),
+            "head": regions.head,
             "K": self.K[t].astype(np.float32),
             "w2c": seq.w2c[t].astype(np.float32),
             "codes": {k: v.astype(np.float32) for k, v in codes.items()},

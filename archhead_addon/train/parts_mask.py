@@ -11,9 +11,12 @@ head, or the mouth of a head seen from behind, is not in B.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..flame.model import PART_OTHER, FlameModel
+from ..flame.regions import head_faces
 
 NEAR = 1e-4  # metres; faces with a vertex closer to the camera plane are skipped
 _MAX_PAIRS = 1 << 22  # (face, pixel) candidates per batch, bounds the memory (~200 MB)
@@ -100,8 +103,22 @@ def parts_mask(
     """B (H,W) float32: 1 where the visible surface is eye or mouth, else 0.
 
     `vertices` (V,3) posed (FLAME forward of `model`). A model without labels gives zeros."""
-    if model.vertex_parts is None:
-        return np.zeros(size, np.float32)
+    return surface_regions(model, vertices, K, w2c, size).parts
+
+
+@dataclass(frozen=True)
+class SurfaceRegions:
+    """What the posed mesh covers at each pixel centre, (H,W) float32 each in {0, 1}."""
+
+    parts: np.ndarray  # the eye/mouth mask B
+    head: np.ndarray  # the head without its neck (flame.regions)
+    mesh: np.ndarray  # the whole mesh, head and neck
+
+
+def surface_regions(
+    model: FlameModel, vertices: np.ndarray, K: np.ndarray, w2c: np.ndarray, size: tuple[int, int]
+) -> SurfaceRegions:
+    """B, the head and the whole mesh from one rasterization (occlusion exact at centres)."""
     face_at, bary = rasterize(
         np.asarray(vertices, np.float64),
         model.faces,
@@ -109,6 +126,12 @@ def parts_mask(
         np.asarray(w2c, np.float64),
         size,
     )
-    labelled = (model.vertex_parts != PART_OTHER)[model.faces[np.maximum(face_at, 0)]]
-    inside = (bary * labelled).sum(axis=-1) > 0.5
-    return (inside & (face_at >= 0)).astype(np.float32)
+    hit = face_at >= 0
+    nearest = np.maximum(face_at, 0)
+    if model.vertex_parts is None:
+        parts = np.zeros(size, bool)
+    else:
+        labelled = (model.vertex_parts != PART_OTHER)[model.faces[nearest]]
+        parts = ((bary * labelled).sum(axis=-1) > 0.5) & hit
+    head = head_faces(model)[nearest] & hit
+    return SurfaceRegions(*(m.astype(np.float32) for m in (parts, head, hit)))

@@ -149,7 +149,15 @@ def make_trainer(args):
     model = load_model(args.flame)
     device = torch.device("cpu")
     train, test = (
-        FrameDataset(args.data, config.resolution, model, split=split, holdout=config.holdout)
+        FrameDataset(
+            args.data,
+            config.resolution,
+            model,
+            split=split,
+            holdout=config.holdout,
+            mask=config.mask,
+            frames=(config.frames or None) if split == "train" else None,
+        )
         for split in ("train", "test")
     )
     frames = loop.frames_on_device(train, device)
