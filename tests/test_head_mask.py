@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from test_dataset import CODES, make_data, posed, write_png
 
 from archhead_addon.evaluate.metrics import psnr, ssim
 from archhead_addon.flame import load_model
@@ -15,7 +16,6 @@ from archhead_addon.track.head_mask import HAIR_REACH, head_and_neck_masks, regi
 from archhead_addon.train.config import TrainConfig
 from archhead_addon.train.dataset import FrameDataset
 from archhead_addon.train.parts_mask import surface_regions
-from test_dataset import CODES, make_data, posed, write_png
 
 
 @pytest.fixture(scope="module")
