@@ -14,7 +14,7 @@ setup:
 	$(BIN)/pip install --upgrade pip
 	$(BIN)/pip install -e '.[dev]'
 	$(BIN)/pip install --no-deps mediapipe==0.10.21  # the last wheel with its models inside
-	$(BIN)/python -c "from archhead_addon.track.real_subject import fetch_media; fetch_media()"
+	$(BIN)/python -c "from archhead_addon.track.real_subject import fetch_media, fetch_webcam; fetch_media(); fetch_webcam()"
 	$(BIN)/python -m archhead_addon.splat.build
 
 test:

@@ -41,28 +41,53 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-SUITE = "trixie"
 MIRROR = "http://deb.debian.org/debian"
 # libegl1 + libegl-mesa0: `blender -b` renders EEVEE through a headless EGL context
 PACKAGES = ("blender", "python3-numpy", "xvfb", "xauth", "libegl1", "libegl-mesa0")
-RECIPE = {"suite": SUITE, "variant": "minbase", "packages": list(PACKAGES), "version": 2}
+# The suites an env can be built from, oldest Blender first: trixie has Blender 4.3.2 (the
+# manifest's 4.2 LTS end), sid the newest Debian packages (Blender 5.2.2 with Python 3.14).
+SUITES = ("trixie", "sid")
+DEFAULT_SUITE = "trixie"
+SUITE_VARIABLE = "ARCHHEAD_BLENDER_SUITE"
+# sid's Release file can be older than its Valid-Until date allows; apt and debootstrap
+# are told not to check that date there (an unstable suite, rebuilt anew anyway).
+NO_VALID_UNTIL = {"sid"}
+# What each suite's finished env holds; trixie's is unchanged so its cached env stays valid.
+RECIPES = {
+    "trixie": {"suite": "trixie", "variant": "minbase", "packages": list(PACKAGES), "version": 2},
+    "sid": {"suite": "sid", "variant": "minbase", "packages": list(PACKAGES), "version": 2},
+}
 STAMP = "archhead-blender-env.json"
+# Kept for callers of the single-suite module.
+SUITE = DEFAULT_SUITE
+RECIPE = RECIPES[DEFAULT_SUITE]
 
 
-def env_root() -> Path:
-    if os.environ.get("ARCHHEAD_BLENDER_ENV"):
+def suite_name(suite: str | None = None) -> str:
+    """The suite asked for: `suite`, else $ARCHHEAD_BLENDER_SUITE, else trixie."""
+    name = suite or os.environ.get(SUITE_VARIABLE) or DEFAULT_SUITE
+    if name not in RECIPES:
+        raise SystemExit(f"unknown Blender env suite {name!r}: one of {', '.join(SUITES)}")
+    return name
+
+
+def env_root(suite: str | None = None) -> Path:
+    """The env's folder: $ARCHHEAD_BLENDER_ENV when no suite is named (neither `suite` nor
+    $ARCHHEAD_BLENDER_SUITE), else the suite's folder in the cache."""
+    named = suite or os.environ.get(SUITE_VARIABLE)
+    if not named and os.environ.get("ARCHHEAD_BLENDER_ENV"):
         return Path(os.environ["ARCHHEAD_BLENDER_ENV"]).resolve()
     cache = Path(os.environ.get("ARCHHEAD_CACHE") or Path.home() / ".cache" / "archhead")
-    return (cache / "blender-env" / SUITE).resolve()
+    return (cache / "blender-env" / suite_name(suite)).resolve()
 
 
 def log(message: str) -> None:
     print(f"[blender-env] {message}", file=sys.stderr, flush=True)
 
 
-def is_ready(root: Path) -> bool:
+def is_ready(root: Path, suite: str | None = None) -> bool:
     try:
-        return json.loads((root / STAMP).read_text()) == RECIPE
+        return json.loads((root / STAMP).read_text()) == RECIPES[suite_name(suite)]
     except (OSError, ValueError):
         return False
 
@@ -84,19 +109,20 @@ def _run(cmd: list[str], **kwargs) -> None:
     subprocess.run(cmd, check=True, **kwargs)
 
 
-def ensure_env(root: Path | None = None) -> Path:
-    """The env's root, built first when missing or built from another recipe."""
-    root = root or env_root()
-    if is_ready(root):
+def ensure_env(root: Path | None = None, suite: str | None = None) -> Path:
+    """The suite's env root, built first when missing or built from another recipe."""
+    root = root or env_root(suite)
+    suite = suite_name(suite)
+    if is_ready(root, suite):
         return root
     with env_lock(root):
-        if is_ready(root):
+        if is_ready(root, suite):
             return root
-        _build(root)
+        _build(root, suite)
     return root
 
 
-def _build(root: Path) -> None:
+def _build(root: Path, suite: str) -> None:
     if os.geteuid() != 0:
         raise SystemExit("building the Blender env needs root (debootstrap, chroot, mount)")
     start = time.monotonic()
@@ -108,22 +134,29 @@ def _build(root: Path) -> None:
         _run(["apt-get", "update"], env=env)
         _run(["apt-get", "install", "-y", "debootstrap"], env=env)
     partial.mkdir(parents=True)
-    _run(["debootstrap", "--variant=minbase", SUITE, str(partial), MIRROR])
+    apt_options: list[str] = []
+    if suite in NO_VALID_UNTIL:
+        apt_options = ["-o", "Acquire::Check-Valid-Until=false"]
+    _run(["debootstrap", "--variant=minbase", suite, str(partial), MIRROR])
+    if apt_options:
+        # Every later apt run in the env (the install below, a user's) skips the date check.
+        conf = partial / "etc/apt/apt.conf.d/99archhead-no-valid-until"
+        conf.write_text('Acquire::Check-Valid-Until "false";\n')
     # No services start inside a chroot.
     policy = partial / "usr/sbin/policy-rc.d"
     policy.write_text("#!/bin/sh\nexit 101\n")
     policy.chmod(0o755)
     with mounted(partial, binds=()):
         apt_env = {"DEBIAN_FRONTEND": "noninteractive"}
-        chroot_run(partial, ["apt-get", "update"], env=apt_env, check=True)
+        chroot_run(partial, ["apt-get", *apt_options, "update"], env=apt_env, check=True)
         chroot_run(
             partial,
-            ["apt-get", "install", "-y", "--no-install-recommends", *PACKAGES],
+            ["apt-get", *apt_options, "install", "-y", "--no-install-recommends", *PACKAGES],
             env=apt_env,
             check=True,
         )
         chroot_run(partial, ["apt-get", "clean"], env=apt_env, check=True)
-    (partial / STAMP).write_text(json.dumps(RECIPE))
+    (partial / STAMP).write_text(json.dumps(RECIPES[suite]))
     partial.rename(root)
     log(f"built {root} in {time.monotonic() - start:.0f} s")
 
@@ -289,22 +322,29 @@ def blender_version(root: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("action", choices=["build", "run", "version", "remove", "path"])
+    parser.add_argument(
+        "--suite",
+        choices=SUITES,
+        default=None,
+        help=f"Debian suite of the env (default: ${SUITE_VARIABLE}, else {DEFAULT_SUITE})",
+    )
     parser.add_argument("cmd", nargs=argparse.REMAINDER)
     args = parser.parse_args(argv)
-    root = env_root()
+    suite = suite_name(args.suite)
+    root = env_root(args.suite)
     if args.action == "path":
         print(root)
     elif args.action == "build":
-        print(ensure_env(root))
+        print(ensure_env(root, suite))
     elif args.action == "version":
-        print(blender_version(ensure_env(root)))
+        print(blender_version(ensure_env(root, suite)))
     elif args.action == "remove":
         with env_lock(root):
             for path in (root, root.with_name(root.name + ".partial")):
                 _remove(path)
     else:
         cmd = args.cmd[1:] if args.cmd[:1] == ["--"] else args.cmd
-        root = ensure_env(root)
+        root = ensure_env(root, suite)
         with env_lock(root), mounted(root):
             return chroot_run(root, cmd or ["bash"], cwd=os.getcwd()).returncode
     return 0

