@@ -70,25 +70,52 @@ def load_avatar(context, head, path) -> tuple[bpy.types.Object, list[str]]:
     found = check_head(ckpt, head_facts(head), base_model(flame_model_path(context)).model_id)
     if found.errors:
         raise InputError(path, None, "; ".join(found.errors))
-    obj, created = avatar_of(head), None
-    if obj is None:
-        collection = head.users_collection[0] if head.users_collection else context.scene.collection
-        obj = created = create_point_object(f"{head.name}_avatar", head_rig(head), collection)
-    drop_session(obj)  # the same path may hold a new checkpoint (a finished training run)
-    settings = obj.archhead_avatar
-    settings.checkpoint = bpy.path.relpath(str(path)) if bpy.data.filepath else str(path)
-    settings.head = head
+    obj = avatar_of(head)
+    before = _data_names()
+    previous = None
+    if obj is not None:
+        previous = (obj.archhead_avatar.checkpoint, obj.archhead_avatar.head)
     try:
+        if obj is None:
+            collection = (
+                head.users_collection[0] if head.users_collection else context.scene.collection
+            )
+            obj = create_point_object(f"{head.name}_avatar", head_rig(head), collection)
+        drop_session(obj)  # the same path may hold a new checkpoint (a finished training run)
+        settings = obj.archhead_avatar
+        settings.checkpoint = bpy.path.relpath(str(path)) if bpy.data.filepath else str(path)
+        settings.head = head
         refresh_avatar(obj, context.scene, context.evaluated_depsgraph_get())
+        show_mean_colour(obj)  # Solid mode's colour (Workbench draws no shader nodes)
+        _make_room(head, context.scene)
     except BaseException:
-        if created is not None:
-            mesh = created.data
-            bpy.data.objects.remove(created)
-            bpy.data.meshes.remove(mesh)
+        # A failed load leaves the scene as it was: what it made goes, an avatar that was
+        # there keeps its checkpoint.
+        if previous is not None and obj is not None:
+            drop_session(obj)
+            obj.archhead_avatar.checkpoint, obj.archhead_avatar.head = previous
+        _remove_new_data(before)
         raise
-    show_mean_colour(obj)  # Solid mode's colour (Workbench draws no shader nodes)
-    _make_room(head, context.scene)
     return obj, found.warnings
+
+
+# What create_point_object may add to bpy.data (the object, its mesh, its material copy,
+# the shared node group and material when the file had none yet), newest users first.
+_MADE_ON_LOAD = ("objects", "meshes", "node_groups", "materials")
+
+
+def _data_names() -> dict[str, set[str]]:
+    return {kind: set(getattr(bpy.data, kind).keys()) for kind in _MADE_ON_LOAD}
+
+
+def _remove_new_data(before: dict[str, set[str]]) -> None:
+    """Remove the datablocks of the kinds above made since `before` was taken."""
+    for kind in _MADE_ON_LOAD:
+        blocks = getattr(bpy.data, kind)
+        for name in set(blocks.keys()) - before[kind]:
+            block = blocks.get(name)
+            if block is not None:
+                blocks.remove(block)
 
 
 def _make_room(head, scene) -> None:

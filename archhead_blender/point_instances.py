@@ -4,7 +4,7 @@ Gaussian falloff. Works the same in EEVEE and Cycles, in the viewport and in ren
 
 Points are loose mesh vertices (`vertices.add` + `foreach_set`), instanced directly by
 "Instance on Points": `bpy.data.pointclouds` has no Python API to add points, and a mesh works
-from Blender 4.2 to 5.0. The `rotation` attribute is of type QUATERNION, which the Named
+from Blender 4.2 to 5.x. The `rotation` attribute is of type QUATERNION, which the Named
 Attribute node reads as a rotation socket, so it feeds "Instance on Points" as it is.
 
 Each instance is a unit icosphere scaled to SIGMA_EXTENT standard deviations. The material
@@ -25,7 +25,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from .compat import ensure_node_tree
+from .compat import ensure_node_tree, modifier_input, set_modifier_input
 
 SIGMA_EXTENT = 3.0  # instance radius in standard deviations (3DGS' own 3-sigma extent)
 ICO_SUBDIVISIONS = 2  # 80 faces: the falloff, not the facets, shapes each Gaussian
@@ -70,11 +70,11 @@ def avatar_material(obj):
     if modifier is None:
         return None
     key = _material_input(modifier.node_group).identifier
-    mat = modifier.get(key)
+    mat = modifier_input(modifier, key)
     if mat is None or mat.name == MATERIAL:
         mat = gaussian_material().copy()
         mat.name = f"{obj.name} Gaussian"
-        modifier[key] = mat
+        set_modifier_input(modifier, key, mat)
         obj.update_tag()
     return mat
 
@@ -187,7 +187,8 @@ def _material_input(group):
     for obj in bpy.data.objects:  # modifiers made before the input: the shared material
         for modifier in obj.modifiers:
             if modifier.type == "NODES" and modifier.node_group is group:
-                modifier[socket.identifier] = modifier.get(socket.identifier) or shared
+                own = modifier_input(modifier, socket.identifier)
+                set_modifier_input(modifier, socket.identifier, own or shared)
     return socket
 
 

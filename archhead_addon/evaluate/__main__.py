@@ -74,13 +74,29 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--avatar", type=Path, required=True, help="avatar checkpoint (.npz)")
     p.add_argument("--data", type=Path, required=True, help="the data folder it trained on")
     p.add_argument("--out", type=Path, required=True, help="folder for tables and images")
-    p.add_argument("--lods", type=_lods, default=[0.0, 0.25, 0.5, 0.75, 1.0])
-    p.add_argument("--precisions", type=_precisions, default=["fp32", "fp16"])
+    p.add_argument(
+        "--lods",
+        type=_lods,
+        default=[0.0, 0.25, 0.5, 0.75, 1.0],
+        help="levels of detail: a list (0,0.5,1) or FIRST:LAST:STEP (0:1:0.05); "
+        "default 0,0.25,0.5,0.75,1",
+    )
+    p.add_argument(
+        "--precisions",
+        type=_precisions,
+        default=["fp32", "fp16"],
+        help="decode precisions, fp32 and / or fp16 (default fp32,fp16)",
+    )
     p.add_argument(
         "--resolution", type=int, help="image size (longer side); default: the training run's"
     )
     p.add_argument("--flame", type=Path, help="FLAME model file (default: the built-in head)")
-    p.add_argument("--split", choices=("test", "train"), default="test")
+    p.add_argument(
+        "--split",
+        choices=("test", "train"),
+        default="test",
+        help="the run's held-out frames (default) or its training frames",
+    )
     p.add_argument(
         "--frames",
         type=_positive,
@@ -93,7 +109,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="which masks cut the truth: head and neck, or the whole person (default: the run's)",
     )
     p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")
-    p.add_argument("--drive-lod", type=float, default=0.0)
+    p.add_argument(
+        "--drive-lod", type=float, default=0.0, help="level of detail of --drive (default 0)"
+    )
     p.add_argument("--drive-frames", type=int, help="render only the first N driving frames")
     return p.parse_args(argv)
 

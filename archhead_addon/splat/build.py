@@ -163,9 +163,18 @@ def _compile(compiler: str, lib_path: Path, verbose: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m archhead_addon.splat.build",
+        description="Compile the CPU splat kernel (C++/OpenMP) into the package, once: later "
+        "calls reuse it while its sources are unchanged.",
+    )
+    parser.add_argument("--force", action="store_true", help="rebuild even when up to date")
+    parser.add_argument("-v", "--verbose", action="store_true", help="print the compiler call")
+    args = parser.parse_args(argv)
     try:
-        path = build(force="--force" in args, verbose="-v" in args)
+        path = build(force=args.force, verbose=args.verbose)
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
