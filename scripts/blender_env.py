@@ -6,14 +6,22 @@
     python scripts/blender_env.py version          # the Blender version the env has
     python scripts/blender_env.py remove           # delete the cached env
 
-The env lives in `$ARCHHEAD_BLENDER_ENV`, else `$ARCHHEAD_CACHE/blender-env/<suite>`, else
-`~/.cache/archhead/blender-env/<suite>`. Building needs root and Debian's archive:
-`debootstrap --variant=minbase trixie` (debootstrap is installed on the host with apt-get
-when missing), then, inside, `apt-get install blender python3-numpy xvfb xauth libegl1
-libegl-mesa0` (Debian's blender lacks numpy; EEVEE in `blender -b` needs EGL). Trixie has
-Blender 4.3.2, the manifest's 4.2 LTS end. A stamp file
-holding the recipe marks a finished env; a different recipe or a half-built folder is built
-anew.
+Two suites, chosen with `--suite` or `$ARCHHEAD_BLENDER_SUITE` (default trixie): trixie has
+Blender 4.3.2, the manifest's 4.2 LTS end; sid has the newest Debian Blender (5.2.2, Python
+3.14). `make test-ui` runs the UI suite in both, trixie first.
+
+    ARCHHEAD_BLENDER_SUITE=sid python scripts/blender_env.py build
+    python scripts/blender_env.py --suite sid run -- blender --version
+
+The trixie env lives in `$ARCHHEAD_BLENDER_ENV` when set; every env else in
+`$ARCHHEAD_CACHE/blender-env/<suite>`, else `~/.cache/archhead/blender-env/<suite>`.
+Building needs root and Debian's archive: `debootstrap --variant=minbase <suite>`
+(debootstrap is installed on the host with apt-get when missing), then, inside, `apt-get
+install blender python3-numpy xvfb xauth libegl1 libegl-mesa0` (Debian's blender lacks numpy;
+EEVEE in `blender -b` needs EGL). sid's Release file may be past its Valid-Until date, so apt
+runs there with `Acquire::Check-Valid-Until=false` (also written into the env's apt.conf.d).
+A stamp file holding the suite's recipe marks a finished env; a different recipe or a
+half-built folder is built anew.
 
 What a chroot needs for Blender and apt: /proc (Blender finds its data through
 /proc/self/exe; apt's maintainer scripts), /dev bound from the host (/dev/null, urandom),
@@ -72,13 +80,13 @@ def suite_name(suite: str | None = None) -> str:
 
 
 def env_root(suite: str | None = None) -> Path:
-    """The env's folder: $ARCHHEAD_BLENDER_ENV when no suite is named (neither `suite` nor
-    $ARCHHEAD_BLENDER_SUITE), else the suite's folder in the cache."""
-    named = suite or os.environ.get(SUITE_VARIABLE)
-    if not named and os.environ.get("ARCHHEAD_BLENDER_ENV"):
+    """The suite's env folder: for the default suite (trixie) $ARCHHEAD_BLENDER_ENV when set,
+    else (any suite) its folder in the cache."""
+    suite = suite_name(suite)
+    if suite == DEFAULT_SUITE and os.environ.get("ARCHHEAD_BLENDER_ENV"):
         return Path(os.environ["ARCHHEAD_BLENDER_ENV"]).resolve()
     cache = Path(os.environ.get("ARCHHEAD_CACHE") or Path.home() / ".cache" / "archhead")
-    return (cache / "blender-env" / suite_name(suite)).resolve()
+    return (cache / "blender-env" / suite).resolve()
 
 
 def log(message: str) -> None:
@@ -309,6 +317,28 @@ def chroot_run(
     if check and proc.returncode != 0:
         raise subprocess.CalledProcessError(proc.returncode, argv, out, err)
     return result
+
+
+def package_version(root: Path, package: str = "blender") -> str:
+    """A Debian package's version in the env, from its dpkg database (no chroot needed):
+    "5.2.2+dfsg-1"; "" when it is not installed."""
+    try:
+        text = (root / "var/lib/dpkg/status").read_text(errors="replace")
+    except OSError:
+        return ""
+    for stanza in text.split("\n\n"):
+        fields = dict(
+            line.split(": ", 1) for line in stanza.splitlines() if ": " in line and line[0] != " "
+        )
+        if fields.get("Package") == package and "installed" in fields.get("Status", ""):
+            return fields.get("Version", "")
+    return ""
+
+
+def blender_label(root: Path, suite: str | None = None) -> str:
+    """The label "Blender 5.2.2 (sid)": which binary a test ran in, for failure messages."""
+    version = package_version(root).split("+")[0].split("-")[0] or "?"
+    return f"Blender {version} ({suite_name(suite)})"
 
 
 def blender_version(root: Path) -> str:

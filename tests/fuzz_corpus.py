@@ -423,7 +423,23 @@ def zip_mutations(data: bytes) -> list[tuple[str, bytes]]:
             warnings.simplefilter("ignore")
             z.writestr(name, b"\x93NUMPY" + bytes(100))
         out.append((f"duplicate member {name}", dup.getvalue()))
+    out.append(("deflate bomb (96 MiB of zeros in the first member)", _deflate_bomb(data)))
     return out
+
+
+def _deflate_bomb(data: bytes) -> bytes:
+    """The archive with its first member replaced by a real deflated npy of 96 MiB of zeros:
+    its sizes are all true, only the ratio gives it away (zip_check.INFLATE_RATIO)."""
+    import io
+
+    zeros = io.BytesIO()
+    np.save(zeros, np.zeros(96 << 17))  # 96 MiB of float64
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as src, zipfile.ZipFile(out, "w") as dst:
+        for i, info in enumerate(src.infolist()):
+            payload = zeros.getvalue() if i == 0 else src.read(info)
+            dst.writestr(info.filename, payload, compress_type=zipfile.ZIP_DEFLATED)
+    return out.getvalue()
 
 
 def npy_header_bomb(shape, descr="<f8") -> bytes:

@@ -14,6 +14,11 @@ from .errors import InputError
 
 # Deflate expands at most ~1032:1; a member declaring more than this lies about its size.
 MAX_DEFLATE_RATIO = 1100
+# Numbers deflate a few times at most (floats barely, zero-padded columns more): the deflated
+# members of an archive may inflate to this many times the file's size, or INFLATE_FLOOR,
+# whichever is more. A 2 MB file claiming 2 GiB is a bomb, refused before a byte is inflated.
+INFLATE_RATIO = 32
+INFLATE_FLOOR = 64 << 20
 DEFAULT_MAX_BYTES = 4 << 30  # a whole archive, uncompressed: far above any checkpoint
 _METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
 
@@ -38,7 +43,7 @@ def check_directory(archive: zipfile.ZipFile, path, max_bytes: int, file_size: i
     repeated = [name for name, n in Counter(i.filename for i in infos).items() if n > 1]
     if repeated:
         raise InputError(path, repeated[0], "duplicate member name in the zip archive")
-    total = 0
+    total = deflated = 0
     for info in infos:
         name = info.filename
         if info.flag_bits & 0x41:  # traditional or strong encryption
@@ -62,6 +67,16 @@ def check_directory(archive: zipfile.ZipFile, path, max_bytes: int, file_size: i
                 "compressed: more than deflate can expand (a zip bomb or a damaged directory)",
             )
         total += info.file_size
+        deflated += info.file_size if info.compress_type == zipfile.ZIP_DEFLATED else 0
+    inflate_limit = max(INFLATE_FLOOR, INFLATE_RATIO * file_size)
+    if deflated > inflate_limit:
+        raise InputError(
+            path,
+            None,
+            f"compressed members inflate to {deflated} bytes from a {file_size}-byte file, "
+            f"above the limit of {inflate_limit} ({INFLATE_RATIO} times the file, at least "
+            f"{INFLATE_FLOOR >> 20} MiB): a decompression bomb",
+        )
     if total > max_bytes:
         raise InputError(
             path,

@@ -11,16 +11,40 @@ import time
 from pathlib import Path
 
 import pytest
-from ui_session import OUT, REPO, BlenderSession, build_zip
+from ui_session import OUT, REPO, SUITE, BlenderSession, build_zip
 
 from scripts import blender_env
+
+
+def _label() -> str:
+    """The label "Blender 5.2.2 (sid)", from the env's dpkg database ("?" before a build)."""
+    return blender_env.blender_label(blender_env.env_root(SUITE), SUITE)
+
+
+def pytest_report_header(config):
+    return f"UI suite binary: {_label()}, env {blender_env.env_root(SUITE)}, out {OUT}"
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Every failing UI test names the binary it failed in (in the short summary too), so
+    the two runs of `make test-ui` cannot be told apart only by their order."""
+    outcome = yield
+    report = outcome.get_result()
+    if not report.failed:
+        return
+    label = _label()
+    report.sections.append(("Blender binary", label))
+    crash = getattr(report.longrepr, "reprcrash", None)
+    if crash is not None and not crash.message.startswith(label):
+        crash.message = f"{label}: {crash.message}"
 
 
 @pytest.fixture(scope="session")
 def blender_session():
     """The mounted env with the extension installed in a clean profile (once a session)."""
     start = time.monotonic()
-    root = blender_env.ensure_env()
+    root = blender_env.ensure_env(suite=SUITE)
     build_s = time.monotonic() - start
     OUT.mkdir(parents=True, exist_ok=True)
     with blender_env.env_lock(root), blender_env.mounted(root):

@@ -9,6 +9,11 @@ env binds it at the same path). Each test runs Blender-side scripts of tests/ui/
 (`BlenderSession.ui` for a window under Xvfb, `.batch` for `blender -b`); a failure names the
 step and keeps its screenshot in out/ui/<test>/. After every Blender run, no process may be
 left in the env (a leftover Blender, Xvfb or backend fails the test and is ended).
+
+The binary is the env of `$ARCHHEAD_BLENDER_SUITE` (trixie, Blender 4.3.2, by default; sid,
+Blender 5.2.2): `make test-ui` runs the suite once in each. Another suite than trixie writes
+to out/ui-<suite>/ instead of out/ui/, and every failure names the binary ("Blender 5.2.2
+(sid): ...").
 """
 
 from __future__ import annotations
@@ -24,7 +29,8 @@ from scripts import blender_env
 
 UI_DIR = Path(__file__).resolve().parent
 REPO = UI_DIR.parents[1]
-OUT = REPO / "out" / "ui"
+SUITE = blender_env.suite_name()
+OUT = REPO / "out" / ("ui" if SUITE == blender_env.DEFAULT_SUITE else f"ui-{SUITE}")
 SCRIPTS = UI_DIR / "blender"
 SCREEN = "1400x900x24"
 
@@ -46,6 +52,7 @@ class BlenderRunError(AssertionError):
 class BlenderSession:
     def __init__(self, root: Path, profile: Path):
         self.root, self.profile = root, profile
+        self.label = blender_env.blender_label(root, SUITE)  # "Blender 5.2.2 (sid)"
         self.version = ""
         self.times: dict[str, float] = {}
 
@@ -95,10 +102,10 @@ class BlenderSession:
         left = self.leftovers()
         if code is None:
             raise BlenderRunError(
-                f"{name}: no exit after {timeout} s; log {log_path}\n{text[-3000:]}"
+                f"{self.label}: {name}: no exit after {timeout} s; log {log_path}\n{text[-3000:]}"
             )
         if left:
-            raise BlenderRunError(f"{name}: processes left behind: {left}")
+            raise BlenderRunError(f"{self.label}: {name}: processes left behind: {left}")
         return code, text
 
     def leftovers(self) -> list[str]:
@@ -125,18 +132,23 @@ class BlenderSession:
             result_path.unlink()
         code, text = self.run(argv, out, timeout, display=True, name=Path(script).stem)
         if not result_path.exists():
-            raise BlenderRunError(f"{script}: exit {code}, no result.json\n{text[-4000:]}")
+            raise BlenderRunError(
+                f"{self.label}: {script}: exit {code}, no result.json\n{text[-4000:]}"
+            )
         result = json.loads(result_path.read_text())
         if result["status"] != "passed":
             failed = result["steps"][-1] if result["steps"] else {}
             shot = failed.get("screenshot")
             raise BlenderRunError(
-                f"{script}: step '{result.get('failed_step')}' failed: {failed.get('error')}\n"
+                f"{self.label}: {script}: step '{result.get('failed_step')}' failed: "
+                f"{failed.get('error')}\n"
                 f"screenshot: {out / shot if shot else 'none'}\n"
                 f"{failed.get('traceback', '')}\n--- log tail ---\n{text[-3000:]}"
             )
         if code != 0:
-            raise BlenderRunError(f"{script}: exit {code} after passing steps\n{text[-3000:]}")
+            raise BlenderRunError(
+                f"{self.label}: {script}: exit {code} after passing steps\n{text[-3000:]}"
+            )
         return result
 
     def batch(self, args: list[str], out: Path, name: str, timeout=420) -> str:
@@ -144,7 +156,7 @@ class BlenderSession:
         argv = ["blender", "-b", "--python-exit-code", "1", *args]
         code, text = self.run(argv, out, timeout, display=False, name=name)
         if code != 0:
-            raise BlenderRunError(f"{name}: exit {code}\n{text[-4000:]}")
+            raise BlenderRunError(f"{self.label}: {name}: exit {code}\n{text[-4000:]}")
         return text
 
 
