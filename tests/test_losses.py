@@ -160,3 +160,24 @@ def test_st_lpips_rejects_small_or_mismatched_images(st_lpips):
         st_lpips(torch.zeros(1, 3, 40, 40), torch.zeros(1, 3, 40, 41))
     assert not any(p.requires_grad for p in st_lpips.parameters())
     assert math.isfinite(float(st_lpips(torch.zeros(1, 3, 32, 32), torch.ones(1, 3, 32, 32))))
+
+
+def test_anisotropy_pulls_only_on_needles():
+    from archhead_addon.train.losses import anisotropy_excess
+
+    round_ish = torch.log(torch.tensor([[1e-3, 2e-3, 5e-3]]))  # ratio 5: no needle
+    needle = torch.log(torch.tensor([[1e-4, 1e-3, 5e-3]]))  # ratio 50
+    log_scales = torch.cat([round_ish, needle]).requires_grad_(True)
+    excess = anisotropy_excess(log_scales)
+    assert float(excess) == pytest.approx((math.log(50) - math.log(10)) / 2)
+    excess.backward()
+    assert log_scales.grad[0].abs().sum() == 0
+    assert log_scales.grad[1].tolist() == pytest.approx([-0.5, 0.0, 0.5])
+
+
+def test_the_huber_threshold_must_be_positive():
+    from archhead_addon.io.errors import InputError
+    from archhead_addon.train.config import TrainConfig
+
+    with pytest.raises(InputError, match="loss.huber_delta"):
+        TrainConfig.read({"loss": {"huber_delta": 0}}, "run.json")

@@ -54,6 +54,9 @@ class LossWeights:
     offset: float = 0.001
     scale: float = 0.5
     huber_delta: float = 0.1
+    # Not the paper's: a penalty on axis ratios above ANISOTROPY_RATIO (losses.py), against
+    # the needles that thin hair and edges grow on real faces; 0 leaves it out.
+    anisotropy: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,11 @@ class TrainConfig:
                 value = getattr(getattr(self, group), f.name)
                 ok = _is_number(value) and value >= 0
                 _require(ok, f"{group}.{f.name}", f"must be a finite number >= 0, got {value!r}")
+        _require(
+            self.loss.huber_delta > 0,
+            "loss.huber_delta",
+            f"must be > 0 (the Huber loss's threshold), got {self.loss.huber_delta!r}",
+        )
         ratio = self.lr_final_ratio
         _require(
             _is_number(ratio) and 0 < ratio <= 1,

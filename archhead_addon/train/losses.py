@@ -1,12 +1,15 @@
 """The training loss of the paper (eq. 6-7):
 
-    L     = L_rgb + λ_lpips L_lpips + λ_μ L_μ + λ_s (1 - 0.5 l) L_s
+    L     = L_rgb + λ_lpips L_lpips + λ_μ L_μ + λ_s (1 - 0.5 l) L_s [+ λ_a L_a]
     L_rgb = Huber(I, Î) + λ_parts Huber(I·B, Î·B)
 
 I the ground-truth image, Î the render, B the eye/mouth parts mask, l the level of detail.
 L_μ and L_s are the mean L2 norms of the Gaussians' offsets from the UV surface and of their
 scales (metres, activated: exp of the log scales); denser levels (small l) get the larger
-scale weight. L_lpips is ST-LPIPS (perceptual.py), the shift-tolerant LPIPS.
+scale weight. L_lpips is ST-LPIPS (perceptual.py), the shift-tolerant LPIPS. L_a, not in
+the paper, is the mean over Gaussians of max(0, ln(longest / shortest axis) - ln 10): zero
+for every Gaussian within the axis ratio the evaluation counts as a needle
+(evaluate.render.NEEDLE_RATIO), a pull on the log scales of the others only.
 
 Huber's threshold is not in the paper. On images in [0, 1] the common default of 1 makes it
 plain half-MSE; 0.1 keeps it quadratic near convergence and linear (L1-like, robust) for the
@@ -14,6 +17,8 @@ gross errors of early training and misaligned pixels.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 import torch.nn.functional as F
@@ -42,6 +47,15 @@ def offset_norm(offsets: torch.Tensor) -> torch.Tensor:
 def scale_norm(log_scales: torch.Tensor) -> torch.Tensor:
     """L_s: the mean L2 norm of the scales exp(log_scales) (N,3)."""
     return log_scales.exp().norm(dim=1).mean()
+
+
+ANISOTROPY_RATIO = 10.0
+
+
+def anisotropy_excess(log_scales: torch.Tensor) -> torch.Tensor:
+    """L_a: the mean of max(0, ln(max axis / min axis) - ln ANISOTROPY_RATIO) over (N,3)."""
+    spread = log_scales.max(dim=1).values - log_scales.min(dim=1).values
+    return F.relu(spread - math.log(ANISOTROPY_RATIO)).mean()
 
 
 def scale_weight(weights: LossWeights, lod: float) -> float:
@@ -83,6 +97,9 @@ class TrainingLoss:
             + w.offset * terms["offset"]
             + scale_weight(w, lod) * terms["scale"]
         )
+        if w.anisotropy > 0:
+            terms["anisotropy"] = anisotropy_excess(gaussians.log_scales)
+            total = total + w.anisotropy * terms["anisotropy"]
         if self.perceptual is not None and lpips_weight > 0:
             if reference is None:
                 reference = self.perceptual.reference(_nchw(target))
