@@ -1,6 +1,8 @@
 """The head without its neck, the tracker's head-and-neck mask, the masks a run trains on and
 the metrics over the head."""
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -149,3 +151,25 @@ def test_tracked_folders_hold_both_masks(tmp_path):
         assert (head > 127).sum() < (person > 127).sum()  # shoulders and shirt left out
     data = FrameDataset(out, 96, load_model(), split="all")
     assert (data[0]["head"] <= (data[0]["mask"] > 0)).mean() > 0.95  # the face is kept
+
+
+def test_a_killed_tracking_leaves_nothing_for_the_next_run(tmp_path):
+    """A stage of a killed run (its process gone) is removed by the next run into the same
+    folder, whatever its OUT; a live run's stage stays."""
+    import subprocess
+    import sys
+
+    from archhead_addon.track.folder import OWNER_FILE, staged_folder
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    dead = tmp_path / "first.partial-abc"
+    dead.mkdir()
+    (dead / OWNER_FILE).write_text(gone.stdout.strip())
+    live = tmp_path / "other.partial-def"
+    live.mkdir()
+    (live / OWNER_FILE).write_text(str(os.getpid()))
+    with staged_folder(tmp_path / "second") as stage:
+        assert (stage / OWNER_FILE).read_text() == str(os.getpid())
+    assert not dead.exists() and live.exists()
+    assert (tmp_path / "second").is_dir() and not (tmp_path / "second" / OWNER_FILE).exists()

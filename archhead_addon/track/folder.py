@@ -7,7 +7,8 @@ training dataset rasterizes the eye/mouth mask B from the tracked mesh at the tr
 
 Everything is written into a temporary sibling of OUT (`OUT.partial-*`) that is renamed to
 OUT only when complete, so a failed or killed run never leaves a half-written folder behind
-(an earlier OUT is replaced only at that moment). Names follow `train.dataset`.
+(an earlier OUT is replaced only at that moment). A kill -9 leaves the stage itself: the next
+run into the same parent folder removes it, whatever its OUT, once its process is gone. Names follow `train.dataset`.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -29,14 +31,44 @@ from ..train.dataset import FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR
 REPORT_FILE = "tracking_report.json"
 
 
+OWNER_FILE = ".owner"  # a stage's process id: a stage whose process is gone is stale
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def remove_stale_stages(parent: Path) -> list[Path]:
+    """Remove the `*.partial-*` folders in `parent` that killed runs left, whatever their
+    OUT; a stage whose process still runs (another tracking into the same folder) stays."""
+    removed = []
+    for stage in parent.glob("*.partial-*"):
+        try:
+            pid = int((stage / OWNER_FILE).read_text())
+        except (OSError, ValueError):
+            pid = None  # no owner yet (just made) or an older layout: judged by age
+            if time.time() - stage.stat().st_mtime < 60:
+                continue
+        if pid is None or not _alive(pid):
+            shutil.rmtree(stage, ignore_errors=True)
+            removed.append(stage)
+    return removed
+
+
 @contextlib.contextmanager
 def staged_folder(out) -> Iterator[Path]:
     """A fresh temporary folder beside `out`, moved to `out` when the block succeeds."""
     out = Path(out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
-    for stale in out.parent.glob(f"{out.name}.partial-*"):  # from killed runs
-        shutil.rmtree(stale, ignore_errors=True)
+    remove_stale_stages(out.parent)
     stage = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
+    (stage / OWNER_FILE).write_text(str(os.getpid()))
     try:
         for name in (FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR):
             (stage / name).mkdir()
@@ -44,6 +76,7 @@ def staged_folder(out) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
+    (stage / OWNER_FILE).unlink()
     os.chmod(stage, 0o755)  # mkdtemp makes it private; a data folder is shared like others
     if out.exists():
         old = Path(tempfile.mkdtemp(prefix=f"{out.name}.old-", dir=out.parent))
