@@ -16,6 +16,7 @@ import sys
 from .io.cli import run_command
 from .sequences import FORMAT_NAMES, read_sequence, write_canonical
 from .track.cli import add_subject, add_track
+from .video_avatar import add_avatar
 
 
 def _add_convert(commands) -> None:
@@ -73,7 +74,7 @@ def _demo(args) -> int:
     return subprocess.run([sys.executable, "-m", DEMO_MODULE, *args.options]).returncode
 
 
-COMMANDS = (_add_convert, _add_demo, add_track, add_subject)
+COMMANDS = (_add_convert, _add_demo, add_track, add_subject, add_avatar)
 
 
 def main(argv=None) -> int:

@@ -8,7 +8,8 @@ training dataset rasterizes the eye/mouth mask B from the tracked mesh at the tr
 Everything is written into a temporary sibling of OUT (`OUT.partial-*`) that is renamed to
 OUT only when complete, so a failed or killed run never leaves a half-written folder behind
 (an earlier OUT is replaced only at that moment). A kill -9 leaves the stage itself: the next
-run into the same parent folder removes it, whatever its OUT, once its process is gone. Names follow `train.dataset`.
+run into the same parent folder removes it, whatever its OUT, once its process is gone.
+Names follow `train.dataset`.
 """
 
 from __future__ import annotations

@@ -1,0 +1,106 @@
+"""`python -m archhead_addon avatar VIDEO --out DIR`: a video to an avatar in one command.
+
+Stages, each the project's own command in a child process (its progress on this terminal,
+Ctrl-C stops it where it would stop alone):
+  1. track VIDEO into DIR/data (skipped when DIR/data holds a finished tracking: the tracker
+     writes its folder whole or not at all);
+  2. train DIR/data into DIR/run (resumed from its last checkpoint when a run was stopped or
+     killed; skipped when finished).
+Run it again after a quit or a crash and it carries on from the stage it reached. The last
+lines say how to bring the head and the avatar into Blender (the add-on's Avatar from Video
+runs the same stages and loads them itself).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from .train.config import DEFAULT_PRESET, PRESETS
+from .train.dataset import TRACKING_FILE
+from .train.run_folder import RunFolder
+
+DATA, RUN = "data", "run"
+
+
+def add_avatar(commands) -> None:
+    p = commands.add_parser(
+        "avatar",
+        help="a video to a trained avatar: track, then train (resumable)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("video", help="video file or folder of numbered images")
+    p.add_argument("--out", required=True, type=Path, help="folder for data/ and run/")
+    p.add_argument(
+        "--preset",
+        default=DEFAULT_PRESET,
+        choices=PRESETS,
+        help=f"training preset (default {DEFAULT_PRESET}; docs/training.md)",
+    )
+    p.add_argument("--flame", help="FLAME model file (default: the built-in head)")
+    p.add_argument("--frames", type=int, help="track only the first N frames")
+    p.add_argument(
+        "--progress-json", action="store_true", help="each stage's JSON progress on stdout"
+    )
+    p.set_defaults(run=run_avatar)
+
+
+def stages_done(out: Path) -> dict[str, bool]:
+    """Which stages a folder has finished: tracked, trained."""
+    data, run = out / DATA, RunFolder(out / RUN)
+    trained = False
+    if run.manifest.is_file():
+        state = json.loads(run.manifest.read_text())
+        trained = state.get("step") == state.get("total_steps") and run.avatar.is_file()
+    return {"tracked": (data / TRACKING_FILE).is_file(), "trained": trained}
+
+
+def track_command(args) -> list[str]:
+    command = [sys.executable, "-m", "archhead_addon", "track", str(args.video)]
+    command += ["--out", str(args.out / DATA)]
+    if args.flame:
+        command += ["--flame", str(args.flame)]
+    if args.frames:
+        command += ["--frames", str(args.frames)]
+    return command + (["--progress-json"] if args.progress_json else [])
+
+
+def train_command(args) -> list[str]:
+    command = [sys.executable, "-m", "archhead_addon.train", "--data", str(args.out / DATA)]
+    command += ["--out", str(args.out / RUN)]
+    if RunFolder(args.out / RUN).state.is_file():
+        command.append("--resume")
+    else:
+        command += ["--config", args.preset, "--holdout", "interleaved"]
+    if args.flame:
+        command += ["--flame", str(args.flame)]
+    return command + (["--progress-json"] if args.progress_json else [])
+
+
+def run_avatar(args) -> int:
+    args.out.mkdir(parents=True, exist_ok=True)
+    done = stages_done(args.out)
+    for name, finished, command in (
+        ("track", done["tracked"], track_command),
+        ("train", done["trained"], train_command),
+    ):
+        if finished:
+            print(f"avatar: {name}: done earlier, kept", file=sys.stderr)
+            continue
+        status = subprocess.run(command(args)).returncode
+        if status:
+            print(
+                f"avatar: {name} stopped (exit status {status}); run the same command again "
+                "to carry on from here",
+                file=sys.stderr,
+            )
+            return status
+    run = RunFolder(args.out / RUN)
+    print(
+        f"avatar: {run.avatar}\nIn Blender: File > Import > Tracked FLAME Sequence "
+        f"{args.out / DATA / TRACKING_FILE}, then ArchHead tab > Load Avatar {run.avatar}",
+        file=sys.stderr,
+    )
+    return 0
