@@ -16,6 +16,8 @@ setup:
 	$(BIN)/pip install --no-deps mediapipe==0.10.21  # the last wheel with its models inside
 	$(BIN)/python -c "from archhead_addon.track.real_subject import fetch_media, fetch_webcam; fetch_media(); fetch_webcam()"
 	$(BIN)/python -m archhead_addon.splat.build
+	$(PY) -m venv .venv-numpy2  # numpy 2 alone: the Blender-side decode under Blender's numpy (tests/test_numpy2.py)
+	.venv-numpy2/bin/pip install --quiet "numpy>=2.4,<2.5"
 
 test:
 	$(BIN)/ruff check .
