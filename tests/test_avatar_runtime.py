@@ -147,7 +147,8 @@ def test_fewer_sh_bands_and_culling_decode_subsets_of_the_full_frame(tmp_path):
     centre = full.means.mean(0).astype(np.float64)
     w2c = np.diag([1.0, -1.0, -1.0, 1.0])
     w2c[:3, 3] = -w2c[:3, :3] @ (centre + [0, 0, 0.5])
-    wide = ViewFrustum.from_camera(w2c, [[100, 0, 50], [0, 100, 50], [0, 0, 1]], 100, 100)
+    wide_K = [[100, 0, 50], [0, 100, 50], [0, 0, 1]]
+    wide = ViewFrustum.from_camera(w2c, wide_K, 100, 100)
     assert len(runtime.decode(0.0, view=wide, **codes)) == len(full)
     # a narrow lens sees the middle of the head only
     narrow = ViewFrustum.from_camera(w2c, [[2000, 0, 50], [0, 2000, 50], [0, 0, 1]], 100, 100)
@@ -162,6 +163,11 @@ def test_fewer_sh_bands_and_culling_decode_subsets_of_the_full_frame(tmp_path):
     cam = full.means[dropped] @ w2c[:3, :3].T + w2c[:3, 3]
     outside = np.abs(cam[:, :2]).max(axis=1) / cam[:, 2]
     assert len(dropped) and (outside > 50 / 2000).all()
+    # a camera looking away from the head: an empty cloud, never an error (a crowd's far heads)
+    away = w2c.copy()
+    away[:3, 3] = -away[:3, :3] @ (centre - [0, 0, 0.5])
+    nothing = runtime.decode(0.0, view=ViewFrustum.from_camera(away, wide_K, 100, 100), **codes)
+    assert len(nothing) == 0 and nothing.sh.shape == (0, 16, 3) and nothing.means.shape == (0, 3)
 
 
 def test_identity_offset_moves_the_avatar_alike_in_torch_numpy_and_the_checkpoint(tmp_path):

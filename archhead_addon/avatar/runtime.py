@@ -374,7 +374,8 @@ class _FrameOutputs:
             log_scales=out["log_scales"],
             quats=out["quats"],
             opacity_logits=out["opacity_logits"][:, 0],
-            sh=out["sh"].reshape(len(texel), -1, 3),
+            # -1 cannot be inferred from an empty array: a head culled whole keeps its width
+            sh=out["sh"].reshape(len(texel), out["sh"].shape[1] // 3, 3),
             offsets=out["offsets"],
             uv_texel=texel,
             resolution=size,
