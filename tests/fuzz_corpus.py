@@ -335,6 +335,8 @@ def bomb_fragments() -> dict[str, bytes]:
         "sparse 2^40 dense": b"cscipy.sparse._csc\ncsc_matrix\n)\x81" + state + b"b",
         "ndarray 2^30 reconstruct": recon,
         "bytearray 2^40": b"cbuiltins\nbytearray\n\x8a\x06\x00\x00\x00\x00\x00\x01\x85R",
+        # numpy.ndarray((100000, 100000)) called: 80 GB
+        "ndarray call 1e5 x 1e5": b"cnumpy\nndarray\nJ\xa0\x86\x01\x00J\xa0\x86\x01\x00\x86\x85R",
     }
 
 

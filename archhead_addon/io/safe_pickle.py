@@ -130,8 +130,28 @@ def _latin1_encode(text, encoding="utf-8"):
     return text.encode("latin1")
 
 
+class _SizedNdarray:
+    """`numpy.ndarray` as a pickle names it. Called (REDUCE), an empty array whose size is
+    checked first: `ndarray((100000, 100000))` once allocated 80 GB of address space and
+    failed in numpy. Handed to a reconstructor, it stands for ndarray itself."""
+
+    def __init__(self, max_bytes: int):
+        self.max_bytes = max_bytes
+
+    def __call__(self, shape, dtype=float, *rest, **options):
+        if rest or options:
+            raise pickle.UnpicklingError("ndarray from a buffer, offset or strides is not allowed")
+        shape = (shape,) if isinstance(shape, int) else tuple(shape)
+        if not all(isinstance(n, int) and n >= 0 for n in shape):
+            raise pickle.UnpicklingError(f"ndarray shape {shape!r:.80} is not allowed")
+        dtype = _checked_dtype(self.max_bytes, dtype)
+        _check_size(shape, dtype.itemsize, self.max_bytes, "ndarray")
+        return np.zeros(shape, dtype)
+
+
 def _reconstructor(max_bytes, cls, base, state):
     """copyreg._reconstructor, restricted to classes this module already allowed."""
+    cls = np.ndarray if isinstance(cls, _SizedNdarray) else cls
     if isinstance(cls, type) and issubclass(cls, _StateStub):
         return cls.__new__(cls)
     if cls is np.ndarray:
@@ -143,6 +163,7 @@ def _reconstructor(max_bytes, cls, base, state):
 
 def _checked_reconstruct(max_bytes, subtype, shape, dtype):
     """numpy's `_reconstruct` (an empty array that BUILD then fills), its size bounded."""
+    subtype = np.ndarray if isinstance(subtype, _SizedNdarray) else subtype
     if subtype is not np.ndarray:
         raise pickle.UnpicklingError(f"numpy reconstruction of {subtype!r} is not allowed")
     shape = (shape,) if isinstance(shape, int) else tuple(shape)
@@ -170,7 +191,7 @@ def _numpy_names() -> dict[tuple[str, str], object]:
     except ImportError:
         from numpy.core import multiarray  # numpy 1.x
 
-    names: dict[tuple[str, str], object] = {("numpy", "ndarray"): np.ndarray}
+    names: dict[tuple[str, str], object] = {}
     for mod in ("numpy.core.multiarray", "numpy._core.multiarray"):
         names[(mod, "scalar")] = multiarray.scalar
     for mod in ("numpy.core.numeric", "numpy._core.numeric"):
@@ -221,6 +242,7 @@ class RestrictedUnpickler(pickle.Unpickler):
         self._allowed = {
             **_numpy_names(),
             **{k: functools.partial(f, max_bytes) for k, f in sized.items()},
+            ("numpy", "ndarray"): _SizedNdarray(max_bytes),
             **(extra or {}),
         }
 
