@@ -19,8 +19,9 @@ from .importing import import_sequence
 from .state import STATE
 from .training import backend_python
 
-# in the order the backend reports them; "refine" only with the photometric refinement
-STAGES = ("detect", "fit", "write", "refine")
+# in the order the backend reports them (archhead_addon.track.pipeline); "refine" only with
+# the photometric refinement, "masks" (the head-and-neck masks) last in every run
+STAGES = ("detect", "fit", "write", "refine", "masks")
 LOG_NAME = "track.log"  # beside the output folder: the folder itself appears only at the end
 
 

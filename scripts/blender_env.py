@@ -57,13 +57,23 @@ PACKAGES = ("blender", "python3-numpy", "xvfb", "xauth", "libegl1", "libegl-mesa
 SUITES = ("trixie", "sid")
 DEFAULT_SUITE = "trixie"
 SUITE_VARIABLE = "ARCHHEAD_BLENDER_SUITE"
-# sid's Release file can be older than its Valid-Until date allows; apt and debootstrap
-# are told not to check that date there (an unstable suite, rebuilt anew anyway).
+# sid's Release file can be past its Valid-Until date (this machine's clock is ahead of the
+# archive's last signing); apt is told not to check that date there. debootstrap does not
+# check it (it verifies the Release signature and the packages' hashes only).
 NO_VALID_UNTIL = {"sid"}
+# Blender 5.2's extensions add-on (bl_pkg) imports cattrs and requests when it registers,
+# which Debian's blender 5.2.2 does not depend on: without them every start prints a
+# traceback ("No module named 'cattrs'") and the Extensions system is not registered.
+SID_PACKAGES = ("python3-cattr", "python3-requests")
 # What each suite's finished env holds; trixie's is unchanged so its cached env stays valid.
 RECIPES = {
     "trixie": {"suite": "trixie", "variant": "minbase", "packages": list(PACKAGES), "version": 2},
-    "sid": {"suite": "sid", "variant": "minbase", "packages": list(PACKAGES), "version": 2},
+    "sid": {
+        "suite": "sid",
+        "variant": "minbase",
+        "packages": [*PACKAGES, *SID_PACKAGES],
+        "version": 2,
+    },
 }
 STAMP = "archhead-blender-env.json"
 # Kept for callers of the single-suite module.
@@ -159,7 +169,14 @@ def _build(root: Path, suite: str) -> None:
         chroot_run(partial, ["apt-get", *apt_options, "update"], env=apt_env, check=True)
         chroot_run(
             partial,
-            ["apt-get", *apt_options, "install", "-y", "--no-install-recommends", *PACKAGES],
+            [
+                "apt-get",
+                *apt_options,
+                "install",
+                "-y",
+                "--no-install-recommends",
+                *RECIPES[suite]["packages"],
+            ],
             env=apt_env,
             check=True,
         )

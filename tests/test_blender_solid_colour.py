@@ -80,19 +80,20 @@ def test_workbench_draws_the_avatar_in_its_colour(coloured):
 def test_a_group_from_before_the_material_input_is_upgraded(coloured):
     """A file saved before each avatar had its material: the group gains the input and the
     avatars there keep the shared Gaussian material."""
+    from archhead_blender.compat import modifier_input, set_modifier_input
     from archhead_blender.point_instances import MATERIAL, MATERIAL_INPUT, gaussian_node_group
 
     _, obj, _ = coloured
     group = obj.modifiers[0].node_group
     socket = group.interface.items_tree[MATERIAL_INPUT]
-    own = obj.modifiers[0][socket.identifier]
+    own = modifier_input(obj.modifiers[0], socket.identifier)
     group.interface.remove(socket)  # Blender drops the modifier's value with it
     bpy.context.view_layer.update()
     try:
         assert gaussian_node_group() is group
         socket = group.interface.items_tree[MATERIAL_INPUT]
-        assert obj.modifiers[0][socket.identifier] == bpy.data.materials[MATERIAL]
+        assert modifier_input(obj.modifiers[0], socket.identifier) == bpy.data.materials[MATERIAL]
         set_material = next(n for n in group.nodes if n.bl_idname == "GeometryNodeSetMaterial")
         assert set_material.inputs["Material"].is_linked
     finally:
-        obj.modifiers[0][socket.identifier] = own
+        set_modifier_input(obj.modifiers[0], socket.identifier, own)

@@ -8,7 +8,8 @@ out/ui/profile, and Backend Python is set to this Python (its environment has to
 env binds it at the same path). Each test runs Blender-side scripts of tests/ui/blender/
 (`BlenderSession.ui` for a window under Xvfb, `.batch` for `blender -b`); a failure names the
 step and keeps its screenshot in out/ui/<test>/. After every Blender run, no process may be
-left in the env (a leftover Blender, Xvfb or backend fails the test and is ended).
+left in the env (a leftover Blender, Xvfb or backend fails the test and is ended), and a run
+that passed may have printed no Python traceback.
 
 The binary is the env of `$ARCHHEAD_BLENDER_SUITE` (trixie, Blender 4.3.2, by default; sid,
 Blender 5.2.2): `make test-ui` runs the suite once in each. Another suite than trixie writes
@@ -33,6 +34,7 @@ SUITE = blender_env.suite_name()
 OUT = REPO / "out" / ("ui" if SUITE == blender_env.DEFAULT_SUITE else f"ui-{SUITE}")
 SCRIPTS = UI_DIR / "blender"
 SCREEN = "1400x900x24"
+TRACEBACK = "Traceback (most recent call last):"
 
 
 def _free_display() -> int:
@@ -149,6 +151,7 @@ class BlenderSession:
             raise BlenderRunError(
                 f"{self.label}: {script}: exit {code} after passing steps\n{text[-3000:]}"
             )
+        self.no_tracebacks(script, text)
         return result
 
     def batch(self, args: list[str], out: Path, name: str, timeout=420) -> str:
@@ -157,7 +160,19 @@ class BlenderSession:
         code, text = self.run(argv, out, timeout, display=False, name=name)
         if code != 0:
             raise BlenderRunError(f"{self.label}: {name}: exit {code}\n{text[-4000:]}")
+        self.no_tracebacks(name, text)
         return text
+
+    def no_tracebacks(self, name: str, text: str) -> None:
+        """A run that passed printed no Python traceback (a handler's, an add-on's that
+        failed to register, the binary's own): Blender goes on after them, the artist sees
+        them in the console."""
+        found = text.find(TRACEBACK)
+        if found >= 0:
+            raise BlenderRunError(
+                f"{self.label}: {name}: a Python traceback in Blender's console\n"
+                f"{text[found : found + 3000]}"
+            )
 
 
 def build_zip(out: Path) -> Path:

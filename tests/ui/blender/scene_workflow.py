@@ -1,5 +1,6 @@
-"""An artist's first session: File > Import through the file browser, the panel, Load Avatar,
-undo and redo of both, a modal Decode cancelled half way, LOD by hand and by the
+"""An artist's first session: File > Import through the file browser, the panel, Load Avatar
+(a failed one first: the scene stays as it was), undo and redo of both, a failed Replace
+Checkpoint, a modal Decode cancelled half way, LOD by hand and by the
 camera-distance driver while the camera moves and the timeline plays, and from another
 camera made active during playback, save.
 
@@ -42,6 +43,58 @@ def panel_with_head(ui):
 
 def undo_import(ui):
     yield from ui_steps.undo_redo(ui, lambda: HEAD in bpy.data.objects, "the imported head")
+
+
+def _scene_state(head) -> dict:
+    """What a failed Load Avatar must leave as it was."""
+    state = {kind: sorted(getattr(bpy.data, kind).keys()) for kind in DATA_KINDS}
+    state["head display"] = head.display_type
+    avatar = bpy.data.objects.get(f"{HEAD}_avatar")
+    if avatar is not None:
+        state["checkpoint"] = avatar.archhead_avatar.checkpoint
+        state["points"] = len(avatar.data.vertices)
+    return state
+
+
+DATA_KINDS = ("objects", "meshes", "materials", "node_groups")
+
+
+def _failing_load(ui, path: Path, what: str):
+    """Load Avatar (`path`) with the points' first refresh failing, as a checkpoint the head
+    accepts but the decode cannot use would: the operator reports and cancels, and the scene
+    is as it was."""
+    from archhead_blender import avatar_objects
+
+    head = bpy.data.objects[HEAD]
+    before = _scene_state(head)
+    real = avatar_objects.refresh_avatar
+
+    def failing(*_args, **_kwargs):
+        raise ValueError("injected decode failure (the UI suite)")
+
+    avatar_objects.refresh_avatar = failing
+    try:
+        result = ui.op("archhead.load_avatar", filepath=str(path))
+    except RuntimeError as exc:  # an operator run from Python raises what it reported
+        result = str(exc)
+    finally:
+        avatar_objects.refresh_avatar = real
+    check("injected decode failure" in str(result), f"a failed {what} gave {result!r}")
+    yield 0.3
+    after = _scene_state(head)
+    changed = {k: (before[k], after.get(k)) for k in before if before[k] != after.get(k)}
+    check(not changed, f"a failed {what} changed the scene: {changed}")
+
+
+def failed_load(ui):
+    yield from _failing_load(ui, AVATAR, "Load Avatar")
+    check(f"{HEAD}_avatar" not in bpy.data.objects, "a failed Load Avatar left an avatar")
+
+
+def failed_replace(ui):
+    other = BLEND.parent / "replacement_avatar.npz"
+    other.write_bytes(AVATAR.read_bytes())
+    yield from _failing_load(ui, other, "Replace Checkpoint")
 
 
 def load(ui):
@@ -204,8 +257,10 @@ run_steps(
         ("File > Import", import_file),
         ("panel with the head", panel_with_head),
         ("undo and redo the import", undo_import),
+        ("a failed Load Avatar leaves the scene as it was", failed_load),
         ("Load Avatar", load),
         ("undo and redo Load Avatar", undo_load),
+        ("a failed Replace Checkpoint keeps the avatar", failed_replace),
         ("modal Decode, cancelled half way", decode_cancel),
         ("LOD by hand", lod_by_hand),
         ("LOD driver during playback", lod_driver_playback),

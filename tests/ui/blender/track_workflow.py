@@ -87,7 +87,7 @@ def track_to_the_end(ui):
     yield from ui.wait_until(progressed, 200, "the tracking to finish", poll=0.3)
     ui.data["stages"] = seen
     # in order, first to last (a loaded machine's window can miss a stage of a second)
-    stages = ["detect", "fit", "write", "refine"]
+    stages = ["detect", "fit", "write", "refine", "masks"]
     shown = [s for s, _ in seen]
     check(
         shown[0] == stages[0]
