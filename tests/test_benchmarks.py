@@ -120,3 +120,27 @@ def test_perceptual_precision_compares_float32_with_bfloat16(repo_root):
     rows = [line.split("|")[1].strip() for line in out.splitlines() if line.startswith("| ")]
     assert rows[1:] == ["float32", "bfloat16 autocast"]
     assert re.search(r"float32 / bfloat16: [\d.]+x", out)
+
+
+def test_gpu_check_answers_help_and_refuses_without_cuda(repo_root):
+    import torch
+
+    helped = subprocess.run(
+        [sys.executable, "benchmarks/gpu_check.py", "--help"],
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert helped.returncode == 0 and "--minutes" in helped.stdout
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is here: gpu_check runs for real")
+    done = subprocess.run(
+        [sys.executable, "benchmarks/gpu_check.py", "--out", "unused.md"],
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2 and "no CUDA device" in done.stderr
+    assert not (repo_root / "unused.md").exists()
