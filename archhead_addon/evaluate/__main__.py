@@ -29,6 +29,7 @@ from pathlib import Path
 from ..io.cli import run_command
 from ..io.errors import InputError
 from ..threads import choose_openmp_waiting
+from ..train.config import MASKS
 from ..train.run_folder import RunFolder
 
 SHEET_ROWS, SHEET_LODS = 4, (0.0, 0.5, 1.0)  # EVAL/sheet.png: test frames by levels
@@ -105,7 +106,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     p.add_argument(
         "--mask",
-        choices=("head", "person"),
+        choices=MASKS,
         help="which masks cut the truth: head and neck, or the whole person (default: the run's)",
     )
     p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")

@@ -24,9 +24,8 @@ Folder layout (DATA):
   K' = diag(s_x, s_y, 1) K with s_x = W' / W_k and s_y = H' / H_k, where (H_k, W_k) is the
   size K was tracked at (`image_size`, else the frames' size).
 - Background: where a mask exists (a masks/ file, or masks_person/ with mask="person", else
-  the frame's own alpha channel), the
-  frame is composited onto `background` (RGB in [0,1], white by default) at full size
-  before resizing: image = mask * frame + (1 - mask) * background. The renderer in training
+  the frame's own alpha channel), the frame is composited onto `background` (RGB in [0,1],
+  white by default) at full size before resizing: image = mask * frame + (1 - mask) * background. The renderer in training
   must clear to the same colour. Without masks, frames are used as they are and the mask
   is all ones.
 - B: the parts/ files when given (resized, soft at the edges); else the model's eye and
@@ -43,9 +42,9 @@ Folder layout (DATA):
 
 `FrameDataset(...)[i]` is a dict of float32 arrays: `image` (H,W,3) in [0,1], `mask` (H,W),
 `parts` (H,W), `head` (H,W), `K` (3,3), `w2c` (4,4), `codes` {shape, expr, jaw, neck, eyes,
-rotation, translation} (1-D each, fitted to the model's widths), plus `frame_id` and `index` (the
-frame's position in the whole sequence). With `cache=True` (default) frames are decoded
-once and kept (about 20 bytes per pixel); the arrays are then shared, so do not modify them.
+rotation, translation} (1-D each, fitted to the model's widths), plus `frame_id` and `index`
+(the frame's position in the whole sequence). With `cache=True` (default) frames are decoded
+once and kept (about 24 bytes per pixel); the arrays are then shared, so do not modify them.
 """
 
 from __future__ import annotations
@@ -59,13 +58,13 @@ from ..flame.model import FlameModel
 from ..io.errors import InputError, warn_input
 from ..sequences import Sequence, read_sequence
 from ..sequences.common import numbered_files
-from .config import HOLDOUTS
+from .config import HOLDOUTS, MASKS
 from .images import IMAGE_SUFFIXES, image_size, read_image, read_mask, resize
 from .parts_mask import surface_regions
 
 FRAMES_DIR, MASKS_DIR, PARTS_DIR, TRACKING_FILE = "frames", "masks", "parts", "tracking.npz"
 PERSON_MASKS_DIR = "masks_person"
-MASK_FOLDERS = {"head": MASKS_DIR, "person": PERSON_MASKS_DIR}  # a run's `mask` -> folder
+MASK_FOLDERS = dict(zip(MASKS, (MASKS_DIR, PERSON_MASKS_DIR), strict=True))  # `mask` -> folder
 SPLITS = ("train", "test", "all")
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
 
