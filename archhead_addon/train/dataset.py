@@ -25,9 +25,9 @@ Folder layout (DATA):
   size K was tracked at (`image_size`, else the frames' size).
 - Background: where a mask exists (a masks/ file, or masks_person/ with mask="person", else
   the frame's own alpha channel), the frame is composited onto `background` (RGB in [0,1],
-  white by default) at full size before resizing: image = mask * frame + (1 - mask) * background. The renderer in training
-  must clear to the same colour. Without masks, frames are used as they are and the mask
-  is all ones.
+  white by default) at full size before resizing: image = mask * frame + (1 - mask) *
+  background. The renderer in training must clear to the same colour. Without masks,
+  frames are used as they are and the mask is all ones.
 - B: the parts/ files when given (resized, soft at the edges); else the model's eye and
   mouth labels rasterized with occlusion in each frame (`parts_mask`). `head`: the tracked
   head without its neck (`flame.regions`), rasterized the same way, where the evaluation
