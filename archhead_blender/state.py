@@ -38,6 +38,9 @@ class RuntimeState:
     training_run: Any = None
     # The tracking run the panel shows (tracking.TrackingRun), if one is going.
     tracking_run: Any = None
+    # Avatar from Video (video_avatar.VideoAvatarRun), if one is going: its stage's tracking
+    # or training run is the one above (stopped with it on quit or file load).
+    video_run: Any = None
 
 
 STATE = RuntimeState()

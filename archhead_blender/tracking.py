@@ -82,8 +82,9 @@ def start_tracking(
     return run
 
 
-def finish_tracking(context, run: TrackingRun) -> tuple[str, str]:
-    """Close the run and import its tracking as a head. Returns (report type, message)."""
+def finish_tracking(context, run: TrackingRun, name: str | None = None) -> tuple[str, str]:
+    """Close the run and import its tracking as a head named `name` (default: after the
+    output folder). Returns (report type, message)."""
     STATE.tracking_run = None
     run.update()
     run.backend.close()
@@ -95,7 +96,10 @@ def finish_tracking(context, run: TrackingRun) -> tuple[str, str]:
     if run.backend.returncode != 0 or not tracking.is_file():
         reason = run.status.error or f"exit code {run.backend.returncode}"
         return "ERROR", f"tracking failed ({reason}); see {run.log}"
-    head = import_sequence(
-        context, tracking, {"name": run.out_dir.name}, model_path=flame_model_path(context)
-    )
+    head = import_tracking(context, tracking, name or run.out_dir.name)
     return "INFO", f"Tracked into {run.out_dir}; imported as {head.name}"
+
+
+def import_tracking(context, tracking: Path, name: str):
+    """The tracker's tracking.npz imported as a rigged head named `name`; returns the rig."""
+    return import_sequence(context, tracking, {"name": name}, model_path=flame_model_path(context))

@@ -50,6 +50,10 @@ class TrainingRun:
         self.backend, self.out_dir, self.head_name = backend, out_dir, head_name
         self.run_folder = RunFolder(out_dir)
         self.status = RunStatus()
+        # how to go on after a stop, after "To go on: " (Avatar from Video has its own)
+        self.resume_hint = (
+            "Train Avatar with the same frames, tracking and Output, and Resume ticked"
+        )
 
     def update(self) -> bool:
         """Read new progress events; True once the process exited."""
@@ -98,10 +102,39 @@ class TrainingRun:
         if self.avatar.is_file():
             return (
                 f"training stopped at step {s.step} of {s.total}; its checkpoint is saved in "
-                f"{self.out_dir}. To go on: Train Avatar with the same frames, tracking and "
-                "Output, and Resume ticked"
+                f"{self.out_dir}. To go on: {self.resume_hint}"
             )
         return f"training stopped (exit code {code}) before a checkpoint; see {self.run_folder.log}"
+
+    # The sidebar's Training box: at the default sidebar width a line holds about 32
+    # characters; summary() (the status bar's) and loss_text() were cut there.
+    def bar_text(self) -> str:
+        """The progress bar's text in the sidebar: the stage and step alone."""
+        s = self.status
+        if self.backend.cancelled_at is not None:
+            return "Stopping (saving) ..."
+        if not s.total:
+            return "Starting ..."
+        return f"Stage {s.stage}: {s.step:,} / {s.total:,}"
+
+    def rate_text(self) -> str:
+        """Speed and time left, under the bar ("" before the first step)."""
+        s = self.status
+        if not s.total or self.backend.cancelled_at is not None:
+            return ""
+        rate = f"{s.seconds_per_step:.2f} s/step, " if s.seconds_per_step else ""
+        return f"{rate}ETA {format_eta(s.eta_seconds)}"
+
+    def loss_lines(self, per_line: int = 2) -> list[str]:
+        """The loss for the sidebar: the total on a line, then its terms, `per_line` a line."""
+        loss = self.status.loss
+        if not loss:
+            return []
+        lines = [f"Loss {loss['total']:.4g}"] if loss.get("total") is not None else []
+        terms = [f"{k} {v:.3g}" for k, v in loss.items() if k != "total"]
+        for start in range(0, len(terms), per_line):
+            lines.append(", ".join(terms[start : start + per_line]))
+        return lines
 
     def loss_text(self) -> str:
         loss = self.status.loss

@@ -11,6 +11,7 @@ from . import (
     ply_export,
     track_operator,
     train_operator,
+    video_avatar_operator,
 )
 
 _CLASSES = (
@@ -24,6 +25,8 @@ _CLASSES = (
     train_operator.ARCHHEAD_OT_cancel_training,
     track_operator.ARCHHEAD_OT_track_video,
     track_operator.ARCHHEAD_OT_cancel_tracking,
+    video_avatar_operator.ARCHHEAD_OT_avatar_from_video,
+    video_avatar_operator.ARCHHEAD_OT_cancel_video_avatar,
 )
 
 

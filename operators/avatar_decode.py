@@ -1,6 +1,11 @@
 """Decode Frames: the avatar's frame set into the caches, one frame per timer tick, so the
 interface stays live, shows progress (cursor, status bar, N-panel) and stops on Esc or the
-panel's Cancel. The work is archhead_blender.decoding's."""
+panel's Cancel. The work is archhead_blender.decoding's.
+
+Decoding is an undo step of its own (a cancelled decode too, once it kept a frame): without
+one, Ctrl+Z right after it went back past Load Avatar, and Ctrl+Shift+Z brought the avatar
+back without its decoded frames. The decoded frames are a cache of the session, not scene
+data: undoing the step keeps them (the avatar object, and with it its session, stays)."""
 
 from __future__ import annotations
 
@@ -19,6 +24,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
 
     bl_idname = "archhead.decode_avatar"
     bl_label = "Decode Frames"
+    bl_options = {"UNDO"}
 
     @classmethod
     def poll(cls, context):
@@ -44,6 +50,9 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.frames = decode_set(context.scene, self.obj)
+        if not self.frames:
+            self.report({"WARNING"}, "No frames to decode in the scene's frame range")
+            return {"CANCELLED"}
         self.start = context.scene.frame_current
         self.uid = self.obj.session_uid
         STATE.decode_progress[self.uid] = {"done": 0, "total": len(self.frames), "cancel": False}
@@ -91,7 +100,9 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         _redraw_sidebars(context)
         if message:
             self.report({"INFO"}, message)
-        return {"FINISHED"} if message and not message.startswith("Cancelled") else {"CANCELLED"}
+        # FINISHED makes the undo step: a decode that kept frames, cancelled or not
+        kept = bool(message) and alive and bool(session(self.obj).decoded)
+        return {"FINISHED"} if kept else {"CANCELLED"}
 
 
 class ARCHHEAD_OT_cancel_decode(bpy.types.Operator):

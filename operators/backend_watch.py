@@ -12,13 +12,19 @@ from archhead_blender.training import POLL_S
 
 class BackendWatch:
     """Mixin for a modal operator whose `self.run` has `update()` and `summary()`;
-    subclasses give `status_prefix` and `finish_run(context) -> (report type, message)`."""
+    subclasses give `status_prefix` and `finish_run(context) -> (report type, message)`,
+    and may give `advance(context)` in place of `self.run.update()` (a run of several
+    stages that needs the context to go from one to the next)."""
 
     status_prefix = "ArchHead"
 
+    def advance(self, context) -> bool:
+        """Read the run's progress; True once it is over."""
+        return self.run.update()
+
     def watch(self, context):
         if bpy.app.background:  # `blender -b` or the bpy module: no event loop, wait here
-            while not self.run.update():
+            while not self.advance(context):
                 time.sleep(POLL_S)
             return self._finish(context)
         wm = context.window_manager
@@ -29,7 +35,7 @@ class BackendWatch:
     def modal(self, context, event):
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        done = self.run.update()
+        done = self.advance(context)
         if context.workspace is not None:
             context.workspace.status_text_set(
                 None if done else f"{self.status_prefix}: {self.run.summary()}"

@@ -8,6 +8,7 @@ from archhead_blender.preferences import get_preferences
 from archhead_blender.state import STATE
 from archhead_blender.tracking import current_tracking
 from archhead_blender.training import current_run
+from archhead_blender.video_avatar import current_video_run
 
 
 class ARCHHEAD_PT_main(bpy.types.Panel):
@@ -23,8 +24,12 @@ class ARCHHEAD_PT_main(bpy.types.Panel):
         model = (prefs.flame_model_path if prefs else "") or "built-in"
         layout.label(text=f"Model: {bpy.path.basename(model) or model}", icon="MESH_MONKEY")
         layout.operator("archhead.import_sequence", icon="IMPORT")
-        _draw_tracking(layout)
-        _draw_training(layout, context)
+        if current_video_run() is not None:  # its stage's tracking or training run inside
+            _draw_video_avatar(layout, current_video_run())
+        else:
+            layout.operator("archhead.avatar_from_video", icon="OUTLINER_OB_CAMERA")
+            _draw_tracking(layout)
+            _draw_training(layout, context)
         missing = missing_kernel()
         if missing:
             layout.label(text=missing, icon="INFO")
@@ -85,6 +90,21 @@ def _draw_avatar(layout, context, head):
     box.operator("archhead.load_avatar", text="Replace Checkpoint", icon="FILE_REFRESH")
 
 
+def _draw_video_avatar(layout, run):
+    """Avatar from Video: one bar over its stages (tracking, then training)."""
+    box = layout.box()
+    box.label(text="Avatar from Video", icon="OUTLINER_OB_CAMERA")
+    box.label(text=run.step_text())
+    box.progress(factor=run.fraction, text=run.bar_text())
+    detail = run.detail_text()
+    if detail:
+        box.label(text=detail)
+    box.operator("archhead.cancel_video_avatar", text="Cancel", icon="CANCEL")
+    col = box.column(align=True)
+    col.label(text="Run it again on the same", icon="INFO")
+    col.label(text="Output to go on after a stop", icon="BLANK1")
+
+
 def _draw_tracking(layout):
     run = current_tracking()
     if run is None:
@@ -103,9 +123,20 @@ def _draw_training(layout, context):
         return
     box = layout.box()
     box.label(text="Training", icon="EXPERIMENTAL")
-    box.progress(factor=run.fraction, text=run.summary())
-    box.label(text=run.loss_text())
+    # short lines: the default sidebar width holds about 32 characters (the status bar has
+    # the whole summary on one line)
+    box.progress(factor=run.fraction, text=run.bar_text())
+    rate = run.rate_text()
+    if rate:
+        box.label(text=rate)
+    lines = run.loss_lines()
+    if lines:
+        col = box.column(align=True)
+        for line in lines:
+            col.label(text=line)
     row = box.row()
     row.operator("archhead.cancel_training", icon="CANCEL")
-    box.label(text="Quitting stops it too (it saves first);", icon="INFO")
-    box.label(text="Train Avatar > Resume goes on", icon="BLANK1")
+    col = box.column(align=True)
+    col.label(text="Quitting stops it too", icon="INFO")
+    col.label(text="(it saves first); Train", icon="BLANK1")
+    col.label(text="Avatar > Resume goes on", icon="BLANK1")

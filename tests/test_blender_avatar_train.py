@@ -166,3 +166,38 @@ def test_train_dialog_fills_in_the_head_tracked_by_track_video(setup):
     finally:
         head["archhead_sequence"] = before
     assert module._tracked_folder(head) is None  # imported from elsewhere: nothing to guess
+
+
+def test_avatar_from_video_on_a_tracked_folder_imports_trains_loads_and_goes_on(setup, monkeypatch):
+    """Avatar from Video (issue 31) in `blender -b` on a folder whose tracking is done (as a
+    stopped run leaves it): no tracking, the head imported and named after the folder, the
+    preset trained with the interleaved holdout, the avatar loaded; again on the finished
+    folder: the same head, the avatar loaded again, no training."""
+    import shutil
+
+    module = importlib.import_module("archhead_blender.video_avatar")
+    real = module.training_settings
+
+    def tiny(overrides, preset):  # the preset's settings at a test's size
+        return {**real(overrides, preset), "resolution": 32, "stage1_steps": 2, "stage2_steps": 1}
+
+    monkeypatch.setattr(module, "training_settings", tiny)
+    out = setup["folder"] / "from_video" / "subject"
+    shutil.copytree(tracked_folder(setup), out / "data")
+    assert module.folder_state(str(out)) == "Tracked here: trains"
+    result = bpy.ops.archhead.avatar_from_video(out_dir=str(out), preset="demo")
+    assert result == {"FINISHED"}
+    head = bpy.data.objects["subject"]
+    avatar = bpy.data.objects["subject_avatar"]
+    assert avatar.archhead_avatar.head == head and len(avatar.data.vertices) > 0
+    request = json.loads((out / "run" / "train_request.json").read_text())
+    assert request["holdout"] == "interleaved" and request["stage1_steps"] == 2
+    assert module.folder_state(str(out)) == "Trained here: loads the avatar"
+    assert module.current_video_run() is None and setup["ops"].current_run() is None
+    log = (out / "run" / "train.log").read_text()
+    objects = sorted(bpy.data.objects.keys())
+    assert bpy.ops.archhead.avatar_from_video(out_dir=str(out), preset="demo") == {"FINISHED"}
+    assert sorted(bpy.data.objects.keys()) == objects  # the head reused, no second one
+    assert (out / "run" / "train.log").read_text() == log  # nothing trained again
+    with pytest.raises(RuntimeError, match="Video: choose the video"):
+        bpy.ops.archhead.avatar_from_video(out_dir=str(setup["folder"] / "empty"))

@@ -61,10 +61,10 @@ def blender_session():
             ["--command", "extension", "install-file", "-r", "user_default", "-e", str(zip_path)],
             install,
             "install",
-            timeout=300,
+            quiet=10,
         )
         session.version = text
-        session.ui("setup_profile.py", install, sys.executable, timeout=300)
+        session.ui("setup_profile.py", install, sys.executable, quiet=30)
         yield session
         (OUT / "times.json").write_text(json.dumps(session.times, indent=1))
 

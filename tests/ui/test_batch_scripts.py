@@ -38,7 +38,7 @@ def test_batch_render_exact_and_eevee(blender_session, saved_scene):
         "frame_0002.png",
     ]
     args = ["--frames", "3", "--lod", "1", "--samples", "1", "--out", str(out / "eevee")]
-    blender_session.batch([*render, "--engine", "BLENDER_EEVEE", *args], out, "eevee", timeout=600)
+    blender_session.batch([*render, "--engine", "BLENDER_EEVEE", *args], out, "eevee", quiet=60)
     assert (out / "eevee" / "frame_0003.png").is_file()
 
 
@@ -59,7 +59,7 @@ def test_demo_in_the_binary(blender_session, tiny_config):
     out = OUT / "demo"
     args = ["--out", str(out), "--frames", "8", "--size", "64", "--subject-frames", "6"]
     args += ["--subject-size", "48", "--subject-samples", "4", "--train-config", str(tiny_config)]
-    blender_session.batch(["--python", script("demo.py"), "--", *args], out, "demo", timeout=600)
+    blender_session.batch(["--python", script("demo.py"), "--", *args], out, "demo", quiet=60)
     summary = json.loads((out / "demo_summary.json").read_text())
     assert summary["gif"] is None and summary["frames"] == 8
     assert len(list((out / "clip").glob("frame_*.png"))) == 8

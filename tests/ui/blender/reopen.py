@@ -35,7 +35,7 @@ def follows_timeline(ui):
         scene.frame_set(frame)
         yield from ui.wait_until(
             lambda: ui_steps.shows_lod(avatar, ui_steps.evaluated_lod(avatar)),
-            60,
+            10,
             f"the avatar at frame {frame}",
         )
     yield from ui.show_sidebar()
@@ -60,7 +60,7 @@ def disable_enable(ui):
         lods.append(ui_steps.evaluated_lod(avatar))
         yield from ui.wait_until(
             lambda: ui_steps.shows_lod(avatar, ui_steps.evaluated_lod(avatar)),
-            60,
+            10,
             f"the avatar at frame {frame} after enable",
         )
     ui.data["lods_after_enable"] = lods

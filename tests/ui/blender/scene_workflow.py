@@ -1,6 +1,7 @@
 """An artist's first session: File > Import through the file browser, the panel, Load Avatar
 (a failed one first: the scene stays as it was), undo and redo of both, a failed Replace
-Checkpoint, a modal Decode cancelled half way, LOD by hand and by the
+Checkpoint, a modal Decode cancelled half way, Ctrl+Z / Ctrl+Shift+Z after it and after a
+finished Decode (the avatar and its decoded frames stay), LOD by hand and by the
 camera-distance driver while the camera moves and the timeline plays, and from another
 camera made active during playback, save.
 
@@ -22,7 +23,7 @@ HEAD = SEQUENCE.stem
 
 def import_file(ui):
     yield from ui_steps.file_browser(ui, "archhead.import_sequence", SEQUENCE)
-    yield from ui.wait_until(lambda: HEAD in bpy.data.objects, 120, "the imported head")
+    yield from ui.wait_until(lambda: HEAD in bpy.data.objects, 10, "the imported head")
     head = bpy.data.objects[HEAD]
     ui.data["imported"] = sorted(o.name for o in bpy.data.objects)
     check(bpy.context.view_layer.objects.active == head.parent, "the imported rig is not active")
@@ -100,7 +101,7 @@ def failed_replace(ui):
 def load(ui):
     yield from ui_steps.file_browser(ui, "archhead.load_avatar", AVATAR)
     name = f"{HEAD}_avatar"
-    yield from ui.wait_until(lambda: name in bpy.data.objects, 120, "the avatar object")
+    yield from ui.wait_until(lambda: name in bpy.data.objects, 10, "the avatar object")
     count = len(bpy.data.objects[name].data.vertices)
     check(count > 1000, f"the avatar shows {count} Gaussians")
     ui.data["gaussians_loaded"] = count
@@ -112,7 +113,7 @@ def undo_load(ui):
     name = f"{HEAD}_avatar"
     yield from ui_steps.undo_redo(ui, lambda: name in bpy.data.objects, "the avatar")
     yield from ui.wait_until(
-        lambda: len(bpy.data.objects[name].data.vertices) > 1000, 30, "points after redo"
+        lambda: len(bpy.data.objects[name].data.vertices) > 1000, 5, "points after redo"
     )
 
 
@@ -127,15 +128,52 @@ def decode_cancel(ui):
     total = STATE.decode_progress[uid]["total"]
     check(total >= 10, f"only {total} frames to decode")
     yield from ui.wait_until(
-        lambda: STATE.decode_progress[uid]["done"] >= total // 2, 180, "half of the frames"
+        lambda: STATE.decode_progress[uid]["done"] >= total // 2, 20, "half of the frames"
     )
     ui.screenshot("decode_progress")
     ui.op("archhead.cancel_decode")
-    yield from ui.wait_until(lambda: uid not in STATE.decode_progress, 30, "the decode to stop")
+    yield from ui.wait_until(lambda: uid not in STATE.decode_progress, 5, "the decode to stop")
     done = len(ui_steps.avatar_session(avatar).decoded)
     check(0 < done < total, f"cancelled decode kept {done} of {total} frames")
     ui.data["decode"] = {"total": total, "done_at_cancel": done}
     ui.screenshot("decode_cancelled")
+
+
+def _avatar_and_frames():
+    """What an undo after Decode Frames must keep: the avatar, its points, its decoded frames."""
+    avatar = bpy.data.objects.get(f"{HEAD}_avatar")
+    if avatar is None:
+        return None
+    decoded = sorted(ui_steps.avatar_session(avatar).decoded)
+    return {"points": len(avatar.data.vertices) > 1000, "decoded": decoded}
+
+
+def undo_decode_cancelled(ui):
+    """A cancelled decode that kept frames is an undo step: Ctrl+Z takes it (not Load Avatar)
+    back, the avatar and its decoded frames stay; Ctrl+Shift+Z the same."""
+    kept = yield from ui_steps.undo_redo_keeps(ui, _avatar_and_frames, "a cancelled decode")
+    check(kept and kept["decoded"], f"nothing decoded before the undo: {kept}")
+
+
+def decode_and_undo(ui):
+    """Decode Frames to the end (every 8th frame), then Ctrl+Z / Ctrl+Shift+Z right after."""
+    from archhead_blender.state import STATE
+
+    avatar = bpy.data.objects[f"{HEAD}_avatar"]
+    avatar.archhead_avatar.decode_frames = "STRIDE"
+    avatar.archhead_avatar.stride = 8
+    ui.op("archhead.decode_avatar", invoke=True)
+    uid = avatar.session_uid
+    decoding = STATE.decode_progress
+    yield from ui.wait_until(lambda: uid not in decoding, 15, "the decode to finish")
+    kept = yield from ui_steps.undo_redo_keeps(ui, _avatar_and_frames, "Decode Frames")
+    scene = bpy.context.scene
+    want = list(range(scene.frame_start, scene.frame_end + 1, 8))
+    check(kept and kept["decoded"] == want, f"decoded {kept}, want frames {want}")
+    ui.data["decode_undo"] = kept["decoded"]
+    avatar = bpy.data.objects[f"{HEAD}_avatar"]  # undo and redo made new Python objects
+    avatar.archhead_avatar.decode_frames = "ALL"
+    ui.screenshot("decode_redone")
 
 
 def lod_by_hand(ui):
@@ -144,7 +182,7 @@ def lod_by_hand(ui):
     for lod in (0.0, 1.0):
         avatar.archhead_avatar.lod = lod
         yield from ui.wait_until(
-            lambda lod=lod: ui_steps.shows_lod(avatar, lod), 60, f"the points at LOD {lod:g}"
+            lambda lod=lod: ui_steps.shows_lod(avatar, lod), 10, f"the points at LOD {lod:g}"
         )
         counts[lod] = len(avatar.data.vertices)
         ui.frame_selected()
@@ -163,22 +201,27 @@ def lod_driver_playback(ui):
     ui.op("archhead.drive_lod", near=0.5, far=3.0)
     check(avatar.animation_data and avatar.animation_data.drivers, "no LOD driver")
     scene.frame_set(scene.frame_start)
-    seen = {}
+    seen = {}  # every frame playback reached (a handler: a loaded machine's timer misses some)
+
+    def reached(scene, depsgraph):
+        lod = avatar.evaluated_get(depsgraph).archhead_avatar.lod
+        seen[scene.frame_current] = float(lod)
+
+    sync = scene.sync_mode
+    scene.sync_mode = "NONE"  # Play Every Frame: no frame dropped however slow the drawing
+    bpy.app.handlers.frame_change_post.append(reached)
     with ui.context("VIEW_3D"):
         bpy.ops.screen.animation_play()
     try:
         yield from ui.wait_until(
-            lambda: (
-                seen.update({scene.frame_current: ui_steps.evaluated_lod(avatar)})
-                or scene.frame_current >= scene.frame_end - 1
-            ),
-            120,
-            "playback to reach the end",
-            poll=0.05,
+            lambda: scene.frame_end - 1 in seen, 30, "playback to reach the end", poll=0.05
         )
     finally:
         with ui.context("VIEW_3D"):
             bpy.ops.screen.animation_cancel(restore_frame=False)
+        bpy.app.handlers.frame_change_post.remove(reached)
+        scene.sync_mode = sync
+    seen = {f: lod for f, lod in seen.items() if f < scene.frame_end}  # a wrap to the start
     ui.data["driven_lod"] = {str(k): round(v, 3) for k, v in sorted(seen.items())}
     check(len(seen) >= 3, f"playback showed only frames {sorted(seen)}")
     lods = [seen[f] for f in sorted(seen)]
@@ -187,7 +230,7 @@ def lod_driver_playback(ui):
     # what the points show follows the driver
     yield from ui.wait_until(
         lambda: ui_steps.shows_lod(avatar, ui_steps.evaluated_lod(avatar)),
-        30,
+        10,
         "the points to show the driven LOD",
     )
     ui.screenshot("driver_end_of_playback", area_type="VIEW_3D")
@@ -208,10 +251,14 @@ def driver_follows_active_camera(ui):
     want = (1.25 - 0.5) / (3.0 - 0.5)
     check(scene.camera.name == "ui_dolly", f"the active camera is {scene.camera.name}")
     scene.frame_set(scene.frame_start)  # the dolly at 3.5 m: LOD 1
+    sync = scene.sync_mode
+    scene.sync_mode = "NONE"  # Play Every Frame
     with ui.context("VIEW_3D"):
         bpy.ops.screen.animation_play()
     try:
-        yield 0.5
+        yield from ui.wait_until(
+            lambda: scene.frame_current != scene.frame_start, 2, "playback to start"
+        )
         before = ui_steps.evaluated_lod(avatar)
         check(before > 0.8, f"LOD {before:.3f} from the dolly's start")
         for obj in bpy.context.selected_objects:
@@ -221,7 +268,7 @@ def driver_follows_active_camera(ui):
         check(scene.camera == near, "Ctrl+Numpad0 did not make ui_near the scene camera")
         yield from ui.wait_until(
             lambda: abs(ui_steps.evaluated_lod(avatar) - want) < 0.05,
-            5,
+            2,
             f"the driven LOD to follow ui_near ({want:.3f})",
         )
         # not the dolly coming near: it is still far away
@@ -229,18 +276,20 @@ def driver_follows_active_camera(ui):
         check(dolly > 2.0, f"the dolly is {dolly:.2f} m away: no test of the switch")
         check(bpy.context.screen.is_animation_playing, "playback stopped")
         frame = scene.frame_current
-        yield 0.5
-        check(scene.frame_current != frame, "the timeline is not playing")
+        yield from ui.wait_until(
+            lambda: scene.frame_current != frame, 2, "the timeline to go on playing"
+        )
         lod = ui_steps.evaluated_lod(avatar)  # the dolly still moves; the LOD stays
         check(abs(lod - want) < 0.05, f"LOD {lod:.3f} moved with the inactive dolly")
         yield from ui.wait_until(
             lambda: ui_steps.shows_lod(avatar, ui_steps.evaluated_lod(avatar)),
-            30,
+            10,
             "the points to show the new camera's LOD",
         )
     finally:
         with ui.context("VIEW_3D"):
             bpy.ops.screen.animation_cancel(restore_frame=False)
+        scene.sync_mode = sync
     ui.data["camera_switch"] = {"before": round(before, 3), "after": round(lod, 3)}
     ui.screenshot("driver_after_camera_switch", area_type="VIEW_3D")
     scene.camera = bpy.data.objects["ui_dolly"]  # as the saved file had it
@@ -262,6 +311,8 @@ run_steps(
         ("undo and redo Load Avatar", undo_load),
         ("a failed Replace Checkpoint keeps the avatar", failed_replace),
         ("modal Decode, cancelled half way", decode_cancel),
+        ("undo and redo a cancelled Decode", undo_decode_cancelled),
+        ("Decode Frames, then undo and redo", decode_and_undo),
         ("LOD by hand", lod_by_hand),
         ("LOD driver during playback", lod_driver_playback),
         ("LOD driver follows the camera made active", driver_follows_active_camera),

@@ -23,7 +23,7 @@ def load(ui):
     ui.op("archhead.load_avatar", filepath=str(AVATAR))
     avatar = bpy.data.objects[f"{HEAD}_avatar"]
     avatar.archhead_avatar.lod = 1.0  # software OpenGL draws LOD 0 slowly
-    yield from ui.wait_until(lambda: ui_steps.shows_lod(avatar, 1.0), 60, "the points at LOD 1")
+    yield from ui.wait_until(lambda: ui_steps.shows_lod(avatar, 1.0), 10, "the points at LOD 1")
     _, space = ui.view3d()
     check(space.shading.type == "SOLID", f"the viewport starts in {space.shading.type}")
     check(space.shading.color_type == "MATERIAL", f"Solid colour is {space.shading.color_type}")

@@ -44,7 +44,7 @@ def track_from_dialog(ui, out_dir: Path, frames: int = FRAMES):
     ui.screenshot(f"track_dialog_{out_dir.name}")
     ui.window.event_simulate(type="RET", value="PRESS", x=x, y=y)
     ui.window.event_simulate(type="RET", value="RELEASE", x=x, y=y)
-    yield from ui.wait_until(lambda: current_tracking() is not None, 20, "the tracking run")
+    yield from ui.wait_until(lambda: current_tracking() is not None, 5, "the tracking run")
     run = current_tracking()
     ui.data.setdefault("backend_pids", []).append(run.backend.process.pid)
     return run
@@ -63,10 +63,10 @@ def cancel_half_way(ui):
         s = run.status
         return s.stage == "fit" or (s.stage == "detect" and s.step >= s.total // 2 > 0)
 
-    yield from ui.wait_until(half_detected, 180, "half the frames detected", poll=0.1)
+    yield from ui.wait_until(half_detected, 20, "half the frames detected", poll=0.1)
     ui.op("archhead.cancel_tracking")
     ui.screenshot("tracking_progress", area_type="VIEW_3D")
-    yield from ui.wait_until(lambda: current_tracking() is None, 60, "the run to stop")
+    yield from ui.wait_until(lambda: current_tracking() is None, 10, "the run to stop")
     yield 0.5
     check(not os.path.exists(f"/proc/{pid}"), f"tracking backend {pid} still running")
     check(not out_dir.exists(), f"a cancelled run left {out_dir}")
@@ -84,7 +84,7 @@ def track_to_the_end(ui):
             ui.screenshot(f"tracking_{run.status.stage}", area_type="VIEW_3D")
         return current_tracking() is None
 
-    yield from ui.wait_until(progressed, 200, "the tracking to finish", poll=0.3)
+    yield from ui.wait_until(progressed, 40, "the tracking to finish", poll=0.3)
     ui.data["stages"] = seen
     # in order, first to last (a loaded machine's window can miss a stage of a second)
     stages = ["detect", "fit", "write", "refine", "masks"]

@@ -17,7 +17,7 @@ SUBJECT, CONFIG, RUN = (Path(p) for p in script_args()[:3])
 def start_training(ui):
     ui.op("archhead.import_sequence", filepath=str(SUBJECT / "tracking.npz"))
     run = ui_steps.start_training(ui, SUBJECT, CONFIG, RUN)
-    yield from ui.wait_until(lambda: run.status.step >= 3, 240, "three training steps")
+    yield from ui.wait_until(lambda: run.status.step >= 3, 30, "three training steps")
     yield from ui.show_sidebar()
     ui.screenshot("training_before_quit")
 

@@ -20,13 +20,13 @@ def resume(ui):
 
     ui.op("archhead.import_sequence", filepath=str(SUBJECT / "tracking.npz"))
     run = ui_steps.start_training(ui, SUBJECT, CONFIG, RUN, resume=True)
-    yield from ui.wait_until(lambda: run.status.total > 0, 120, "the resumed run to start")
+    yield from ui.wait_until(lambda: run.status.total > 0, 20, "the resumed run to start")
     first = run.status.step
     ui.data["first_step"] = first
     check(first >= STEP_AT_QUIT, f"resumed at step {first}, quit at {STEP_AT_QUIT}")
-    yield from ui.wait_until(lambda: run.status.step > first, 120, "a step after resuming")
+    yield from ui.wait_until(lambda: run.status.step > first, 10, "a step after resuming")
     ui.op("archhead.cancel_training")
-    yield from ui.wait_until(lambda: current_run() is None, 150, "the run to end")
+    yield from ui.wait_until(lambda: current_run() is None, 20, "the run to end")
 
 
 run_steps([("Train Avatar with Resume", resume)])

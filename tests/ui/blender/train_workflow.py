@@ -27,7 +27,7 @@ def current_run():
 
 def import_subject(ui):
     yield from ui_steps.file_browser(ui, "archhead.import_sequence", SUBJECT / "tracking.npz")
-    yield from ui.wait_until(lambda: HEAD in bpy.data.objects, 60, "the imported head")
+    yield from ui.wait_until(lambda: HEAD in bpy.data.objects, 10, "the imported head")
     yield from ui.show_sidebar()
 
 
@@ -35,14 +35,21 @@ def train_and_cancel(ui):
     run = ui_steps.start_training(ui, SUBJECT, CONFIG, RUN)
     pid = ui.data["backend_pid"]
     ui.screenshot("training_starting")
-    yield from ui.wait_until(lambda: run.status.step >= 3, 240, "three training steps")
+    yield from ui.wait_until(lambda: run.status.step >= 3, 30, "three training steps")
     yield 1.0
     ui.data["progress"] = run.summary()
+    # the sidebar's lines fit its default width (about 32 characters; the screenshot shows
+    # them whole)
+    lines = [run.bar_text(), run.rate_text(), *run.loss_lines()]
+    ui.data["panel_lines"] = lines
+    check(len(lines) >= 4, f"the Training box shows only {lines}")
+    long = [line for line in lines if len(line) > 32]
+    check(not long, f"Training box lines wider than the default sidebar: {long}")
     ui.screenshot("training_progress")
     ui.op("archhead.cancel_training")
     yield 0.3
     ui.screenshot("training_stopping")
-    yield from ui.wait_until(lambda: current_run() is None, 150, "the run to end")
+    yield from ui.wait_until(lambda: current_run() is None, 20, "the run to end")
     yield 0.5
     check(not os.path.exists(f"/proc/{pid}"), f"backend {pid} still running after cancel")
     avatar = bpy.data.objects.get(f"{HEAD}_avatar")
@@ -58,7 +65,7 @@ def undo_after_training(ui):
     yield from ui_steps.undo_redo(ui, lambda: name in bpy.data.objects, "the trained avatar")
     check(HEAD in bpy.data.objects, "Ctrl+Z after training removed the head too")
     yield from ui.wait_until(
-        lambda: len(bpy.data.objects[name].data.vertices) > 0, 30, "the avatar's points"
+        lambda: len(bpy.data.objects[name].data.vertices) > 0, 5, "the avatar's points"
     )
 
 

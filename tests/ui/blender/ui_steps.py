@@ -21,7 +21,7 @@ def file_browser(ui, idname: str, path: Path):
     """Open `idname`'s file browser as its button does, pick `path` in it (folder and file
     name fields), press Return."""
     ui.op(idname, invoke=True)
-    yield from ui.wait_until(lambda: _file_browser() is not None, 30, "the file browser")
+    yield from ui.wait_until(lambda: _file_browser() is not None, 5, "the file browser")
     yield 0.5
     window, area = _file_browser()
     params = area.spaces.active.params
@@ -30,17 +30,45 @@ def file_browser(ui, idname: str, path: Path):
     yield 0.5
     ui.screenshot(f"file_browser_{idname.split('.')[1]}", window=window)
     ui.key("RET", window=window, area=area)  # Return in the file list: Accept
-    yield from ui.wait_until(lambda: _file_browser() is None, 60, "the file browser to close")
+    yield from ui.wait_until(lambda: _file_browser() is None, 15, "the file browser to close")
 
 
 def undo_redo(ui, present, what: str):
     """Ctrl+Z takes `what` away, Ctrl+Shift+Z brings it back (keys typed over the 3D view)."""
     check(present(), f"{what} missing before undo")
     ui.key("Z", ctrl=True)
-    yield from ui.wait_until(lambda: not present(), 20, f"Ctrl+Z to remove {what}")
+    yield from ui.wait_until(lambda: not present(), 5, f"Ctrl+Z to remove {what}")
     ui.key("Z", ctrl=True, shift=True)
-    yield from ui.wait_until(present, 20, f"Ctrl+Shift+Z to bring back {what}")
+    yield from ui.wait_until(present, 5, f"Ctrl+Shift+Z to bring back {what}")
     yield 0.3
+
+
+def undo_redo_keeps(ui, state, what: str):
+    """Ctrl+Z, then Ctrl+Shift+Z (keys typed over the 3D view), each waited for through
+    Blender's undo_post / redo_post handlers: `state()` (what must survive both, e.g. the
+    avatar and its decoded frames) is the same after each as before."""
+    calls = {"undo": 0, "redo": 0}
+
+    def on_undo(*_args):
+        calls["undo"] += 1
+
+    def on_redo(*_args):
+        calls["redo"] += 1
+
+    before = state()
+    bpy.app.handlers.undo_post.append(on_undo)
+    bpy.app.handlers.redo_post.append(on_redo)
+    try:
+        for kind, shift in (("undo", False), ("redo", True)):
+            ui.key("Z", ctrl=True, shift=shift)
+            yield from ui.wait_until(lambda kind=kind: calls[kind] > 0, 5, f"the {kind}")
+            yield 0.3
+            after = state()
+            check(after == before, f"{kind} after {what}: {after}, before {before}")
+    finally:
+        bpy.app.handlers.undo_post.remove(on_undo)
+        bpy.app.handlers.redo_post.remove(on_redo)
+    return before
 
 
 def avatar_session(obj):
