@@ -53,24 +53,21 @@ def _convert(args) -> int:
     return 0
 
 
-DEMO_MODULE = "scripts.demo"
+DEMO_MODULE = "archhead_blender.demo"
 
 
 def _add_demo(commands) -> None:
     p = commands.add_parser(
         "demo",
         help="the whole pipeline on the built-in head (bpy module)",
-        description="Synthetic subject, short training (or --checkpoint), "
-        "import, decode, LOD driver on a dolly-in camera, clip, contact "
-        "sheet, .blend: scripts/demo.py, whose options it takes.",
+        add_help=False,  # --help is the demo's own, with every option it takes
     )
-    p.set_defaults(run=_demo, passes_on=True)  # every other argument goes to the script
+    p.set_defaults(run=_demo, passes_on=True)  # every other argument goes to the demo
 
 
 def _demo(args) -> int:
     # A child process: bpy loads Blender's whole runtime, which this light CLI stays without.
-    # The demo is a checkout's script (scripts/demo.py), reached as a module from the
-    # checkout's root, never by a path into the Blender side.
+    # The demo is an installed module of the Blender side, so it runs from any folder.
     return subprocess.run([sys.executable, "-m", DEMO_MODULE, *args.options]).returncode
 
 

@@ -8,12 +8,14 @@ Ctrl-C stops it where it would stop alone):
      killed; skipped when finished).
 Run it again after a quit or a crash and it carries on from the stage it reached. The last
 lines say how to bring the head and the avatar into Blender (the add-on's Avatar from Video
-runs the same stages and loads them itself).
+runs the same stages and loads them itself). Ctrl-C stops the stage running as it would stop
+alone: training saves its checkpoint first.
 """
 
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -79,6 +81,18 @@ def train_command(args) -> list[str]:
     return command + (["--progress-json"] if args.progress_json else [])
 
 
+def _run_stage(command: list[str]) -> int:
+    """The stage's exit status. A SIGINT to this process (Ctrl-C reaches both; Blender's
+    Cancel only this one) is passed on and the stage is waited for while it saves its
+    checkpoint: `subprocess.run` would kill it a quarter of a second later."""
+    child = subprocess.Popen(command)
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: child.send_signal(signum))
+    try:
+        return child.wait()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def run_avatar(args) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     done = stages_done(args.out)
@@ -89,7 +103,7 @@ def run_avatar(args) -> int:
         if finished:
             print(f"avatar: {name}: done earlier, kept", file=sys.stderr)
             continue
-        status = subprocess.run(command(args)).returncode
+        status = _run_stage(command(args))
         if status:
             print(
                 f"avatar: {name} stopped (exit status {status}); run the same command again "

@@ -2,8 +2,10 @@
 run again, each finished stage kept."""
 
 import json
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -11,22 +13,34 @@ from archhead_addon.track.real_subject import fetch_media
 
 
 @pytest.mark.slow
-def test_video_to_avatar_then_again_keeps_what_is_done(tmp_path, repo_root):
+def test_video_to_avatar_stopped_resumed_then_kept(tmp_path):
+    """Ctrl-C to the command alone (as Blender's Cancel sends it) stops training at a
+    checkpoint; the same command resumes it, and a third run keeps both stages."""
     video = fetch_media() / "single_face.mp4"
     out = tmp_path / "me"
     command = [sys.executable, "-m", "archhead_addon", "avatar", str(video), "--out", str(out)]
     command += ["--preset", "demo", "--frames", "12"]
-    first = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
-    assert first.returncode == 0, first.stderr[-2000:]
+    manifest = out / "run" / "checkpoint.json"
+    first = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    deadline = time.monotonic() + 600
+    while not manifest.is_file() and first.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    first.send_signal(signal.SIGINT)
+    stderr = first.communicate(timeout=300)[1]
+    assert first.returncode == 130, stderr[-2000:]
+    stopped = json.loads(manifest.read_text())["step"]
+    assert 0 < stopped < 600 and "train stopped" in stderr
     assert (out / "data" / "tracking.npz").is_file() and (out / "data" / "masks_person").is_dir()
-    manifest = json.loads((out / "run" / "checkpoint.json").read_text())
-    assert manifest["step"] == manifest["total_steps"] == 600
+
+    second = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert second.returncode == 0, second.stderr[-2000:]
+    assert "track: done earlier, kept" in second.stderr and "resum" in second.stderr.lower()
+    assert json.loads(manifest.read_text())["step"] == 600
     config = json.loads((out / "run" / "config.json").read_text())
     assert config["holdout"] == "interleaved" and config["mask"] == "head"
-    assert "Load Avatar" in first.stderr and str(out / "run" / "avatar.npz") in first.stderr
-    again = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
-    assert again.returncode == 0
-    assert again.stderr.count("done earlier, kept") == 2
+    assert "Load Avatar" in second.stderr and str(out / "run" / "avatar.npz") in second.stderr
+    third = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert third.returncode == 0 and third.stderr.count("done earlier, kept") == 2
 
 
 def test_a_stopped_run_resumes_and_a_bad_video_names_the_stage(tmp_path):
