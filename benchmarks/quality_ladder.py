@@ -41,6 +41,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--holdout", default="interleaved", choices=("last", "interleaved"))
     p.add_argument("--mask", default="head", choices=("head", "person"))
     p.add_argument("--lods", default="0,0.5,1", help="levels scored (evaluate's --lods)")
+    p.add_argument(
+        "--score-only", action="store_true", help="train nothing: rungs without a run say so"
+    )
     return p.parse_args(argv)
 
 
@@ -89,7 +92,8 @@ def _evaluate(args, run: Path, split: str, frames: int | None, scored: Path) -> 
 def ladder(args) -> str:
     runs = {1: args.out / "run_1", 10: args.out / "run_10", None: args.out / "run_all"}
     for frames, run in runs.items():
-        _train(args, run, args.short if frames else args.config, frames)
+        if not args.score_only:
+            _train(args, run, args.short if frames else args.config, frames)
     lods = [float(x) for x in args.lods.split(",")]
     head = " | ".join(f"LOD {lod:g}" for lod in lods)
     lines = [
@@ -98,6 +102,9 @@ def ladder(args) -> str:
         "|---" * (7 + 2 * len(lods)) + "|",
     ]
     for name, what, frames, split, scored in RUNGS:
+        if not _finished(runs[frames]):
+            lines.append(f"| {name}: {what} | {split} | not run |" + " |" * (4 + 2 * len(lods)))
+            continue
         rows = _evaluate(args, runs[frames], split, scored or frames, args.out / f"eval_{name}")
         by_lod = {float(r["lod"]): r for r in rows}
         first, last = by_lod[lods[0]], by_lod[lods[-1]]
