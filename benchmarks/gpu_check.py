@@ -99,6 +99,11 @@ def compare_backends(n: int, side: int) -> dict:
     }
 
 
+def _train_command(data: Path, out: Path, config: Path) -> list[str]:
+    train = [sys.executable, "-m", "archhead_addon.train", "--data", str(data)]
+    return train + ["--out", str(out), "--config", str(config)]
+
+
 def time_preset(data: Path, preset: str, steps: int) -> dict:
     """Median seconds per step of each stage, from a short run's progress events."""
     from archhead_addon.train.config import TrainConfig
@@ -108,18 +113,7 @@ def time_preset(data: Path, preset: str, steps: int) -> dict:
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "config.json"
         path.write_text(json.dumps(config))
-        command = [
-            sys.executable,
-            "-m",
-            "archhead_addon.train",
-            "--data",
-            str(data),
-            "--out",
-            str(Path(folder) / "run"),
-            "--config",
-            str(path),
-            "--progress-json",
-        ]
+        command = _train_command(data, Path(folder) / "run", path) + ["--progress-json"]
         done = subprocess.run(command, capture_output=True, text=True, check=True)
     marks = {1: [], 2: []}  # (step, elapsed seconds) of each stage's step events
     for line in done.stdout.splitlines():
@@ -187,20 +181,7 @@ def short_run(data: Path, minutes: float, out: Path) -> dict:
     path = out / "gpu_paper_short.json"
     path.write_text(json.dumps(config))
     run, scores = out / "run", out / "eval"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "archhead_addon.train",
-            "--data",
-            str(data),
-            "--out",
-            str(run),
-            "--config",
-            str(path),
-        ],
-        check=True,
-    )
+    subprocess.run(_train_command(data, run, path), check=True)
     subprocess.run(
         [
             sys.executable,
