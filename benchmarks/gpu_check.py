@@ -105,7 +105,7 @@ def _train_command(data: Path, out: Path, config: Path) -> list[str]:
 
 
 def time_preset(data: Path, preset: str, steps: int) -> dict:
-    """Median seconds per step of each stage, from a short run's progress events."""
+    """Milliseconds per step of each stage, from a short run's progress events."""
     from archhead_addon.train.config import TrainConfig
 
     config = json.loads(TrainConfig.load(preset).to_json())
