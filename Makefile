@@ -1,9 +1,10 @@
-# The README's commands: `make setup` installs everything into .venv, `make test` lints and
-# runs the whole suite, `make demo` runs the demo (scripts/demo.py), `make extension` builds
-# the installable zip for this platform into dist/ (scripts/build_extension.py), `make test-ui`
-# runs the UI suite in the real Blender binaries 4.3.2 (Debian trixie) and 5.2.2 (sid) (tests/ui; needs root and Debian's archive the
-# first time, to build the binary's env: scripts/blender_env.py), `make ui-screenshots` copies
-# its screenshots into docs/.
+# The README's commands: `make setup` installs everything into .venv (and .venv-numpy2, numpy 2
+# alone for tests/test_numpy2.py), `make test` lints and runs the whole suite, `make demo` runs
+# the demo (archhead_blender/demo.py), `make extension` builds the installable zip for this
+# platform into dist/ (scripts/build_extension.py), `make test-ui` runs the UI suite in the real
+# Blender binaries 4.3.2 (Debian trixie) and 5.2.2 (sid) (tests/ui; needs root and Debian's
+# archive the first time, to build each binary's env: scripts/blender_env.py),
+# `make ui-screenshots` copies its screenshots into docs/.
 PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
