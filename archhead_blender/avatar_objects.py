@@ -29,8 +29,10 @@ def head_of(obj):
         return obj
     if is_avatar(obj):
         return obj.archhead_avatar.head
-    name = obj.get("archhead_head")
-    return bpy.data.objects.get(name) if name else None
+    link = obj.get("archhead_head")  # the head itself; its name in files made before
+    if isinstance(link, bpy.types.Object):
+        return link
+    return bpy.data.objects.get(link) if isinstance(link, str) and link else None
 
 
 def avatar_of(head):
@@ -44,6 +46,17 @@ def active_avatar(context):
     """The avatar point object of the active object's head."""
     head = head_of(context.active_object)
     return avatar_of(head) if head is not None else None
+
+
+def selected_avatars(context) -> list:
+    """The avatars of the selected objects' heads (each once), the active one's first."""
+    found = []
+    for obj in [context.active_object, *getattr(context, "selected_objects", ())]:
+        head = head_of(obj)
+        avatar = avatar_of(head) if head is not None else None
+        if avatar is not None and avatar not in found:
+            found.append(avatar)
+    return found
 
 
 def head_facts(head) -> HeadFacts:

@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 
 from archhead_addon.avatar.checkpoint_format import read_checkpoint
-from archhead_addon.avatar.culling import ViewFrustum
+from archhead_addon.avatar.culling import REACH_PAD, SIGMAS, ViewFrustum
 from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.avatar.runtime import AvatarRuntime
@@ -27,7 +27,7 @@ from archhead_addon.io.digest import file_digest
 from archhead_addon.splat.frame import SplatFrame
 
 from .preferences import get_preferences
-from .state import STATE, forget_object, object_uids
+from .state import STATE, drop_user, forget_object, object_uids
 
 PRECISION = "fp32"
 
@@ -66,11 +66,14 @@ def head_identity(head) -> dict:
     }
 
 
-class AvatarSession:
-    def __init__(self, obj):
-        settings = obj.archhead_avatar
-        self.source = _source(obj)
-        path = Path(bpy.path.abspath(settings.checkpoint))
+class SharedDecoder:
+    """What every avatar of one checkpoint, identity and display shares: the numpy runtime
+    (its weights and level tables, about 100 MB), the memory cache and the disk cache. A
+    crowd of heads that use one checkpoint decodes through one of these; per avatar remain
+    only its codes, level of detail and object (AvatarSession)."""
+
+    def __init__(self, source: tuple, settings):
+        path = Path(source[0])
         ckpt = read_checkpoint(path)
         if settings.identity == "HEAD" and settings.head is not None:
             ckpt = replace(ckpt, **head_identity(settings.head))
@@ -80,16 +83,22 @@ class AvatarSession:
         # alone (the others are neither decoded nor cached).
         self.sh_degree = ckpt.config.sh_degree if settings.view_dependent else 0
         self.joint_dirs = expression_joint_dirs(self.runtime.mesh, self.runtime.mesh.n_expr)
-        h = hashlib.sha1(f"{file_digest(path)}/{PRECISION}/{self.sh_degree}/".encode())
-        h.update(np.ascontiguousarray(ckpt.identity_shape, np.float32).tobytes())
-        if ckpt.identity_offset is not None:
-            h.update(np.ascontiguousarray(ckpt.identity_offset, np.float32).tobytes())
-        self.digest = h.hexdigest()
-        self.memory = MemoryCache(settings.memory_mb << 20)
+        self.digest = source[1]
+        self.memory = MemoryCache(0)
         self.disk = _disk_cache(settings)
-        self.decoded: dict[int, Decoded] = {}
-        self.shown: tuple | None = None  # what the point object holds now
-        self.lod_override: float | None = None  # batch renders fix the level of detail
+        self.budgets: dict[int, int] = {}  # user's session_uid -> its memory budget, bytes
+
+    def use(self, uid: int, memory_mb: int) -> None:
+        """Count an avatar among the users: the memory cache holds the sum of their budgets
+        (each head's frames are its own; a shared budget would evict a crowd's every frame)."""
+        self.budgets[uid] = memory_mb << 20
+        self.memory.max_bytes = sum(self.budgets.values())
+
+    def release(self, uid: int) -> bool:
+        """Forget a user; True when none is left (the decoder can go)."""
+        self.budgets.pop(uid, None)
+        self.memory.max_bytes = sum(self.budgets.values())
+        return not self.budgets
 
     def key(self, codes: FrameCodes, lod: float, view=None, sh_degree=None) -> str:
         digest = codes.digest()
@@ -99,6 +108,14 @@ class AvatarSession:
             digest += f"/sh{sh_degree}"
         return frame_key(self.digest, digest, resolution_for_lod(lod)[0])
 
+    def cached(self, key: str) -> SplatFrame | None:
+        splat = self.memory.get(key)
+        if splat is None and self.disk is not None:
+            splat = self.disk.get(key)
+            if splat is not None:
+                self.memory.put(key, splat)
+        return splat
+
     def frame(
         self,
         codes: FrameCodes,
@@ -107,12 +124,15 @@ class AvatarSession:
         sh_degree: int | None = None,
     ) -> tuple[str, SplatFrame]:
         """(key, Gaussians) from memory, the disk cache or a fresh decode; `view` culls to
-        a camera (a culled frame is cached under that camera); `sh_degree` overrides the
-        bands the display decodes."""
+        a camera: from the whole frame when a cache holds it (cheap, so frames decoded
+        ahead serve every camera), else decoded culled and cached under that camera;
+        `sh_degree` overrides the bands the display decodes."""
         key = self.key(codes, lod, view, sh_degree)
-        splat = self.memory.get(key)
-        if splat is None and self.disk is not None:
-            splat = self.disk.get(key)
+        splat = self.cached(key)
+        if splat is None and view is not None:
+            whole = self.cached(self.key(codes, lod, None, sh_degree))
+            if whole is not None:
+                return key, cull_frame(whole, view)
         if splat is None:
             kwargs = codes.as_kwargs()
             kwargs["expr"] = kwargs["expr"][: self.n_expr]
@@ -126,23 +146,93 @@ class AvatarSession:
             splat = SplatFrame.from_gaussians(gaussians)
             if self.disk is not None:
                 self.disk.put(key, splat)
-        self.memory.put(key, splat)
+            self.memory.put(key, splat)
         return key, splat
 
 
+class AvatarSession:
+    """One avatar object's state beside its shared decoder: the frames it decoded, what its
+    point mesh shows and a batch render's fixed level of detail."""
+
+    def __init__(self, obj):
+        self.source = _source(obj)
+        self.shared = shared_decoder(self.source, obj)
+        self.decoded: dict[int, Decoded] = {}
+        self.shown: tuple | None = None  # what the point object holds now
+        self.lod_override: float | None = None  # batch renders fix the level of detail
+
+    @property
+    def runtime(self) -> AvatarRuntime:
+        return self.shared.runtime
+
+    @property
+    def sh_degree(self) -> int:
+        return self.shared.sh_degree
+
+    @property
+    def joint_dirs(self):
+        return self.shared.joint_dirs
+
+    def frame(self, codes, lod, view=None, sh_degree=None) -> tuple[str, SplatFrame]:
+        return self.shared.frame(codes, lod, view, sh_degree)
+
+
+def shared_decoder(source: tuple, obj) -> SharedDecoder:
+    """The decoder of `source` (`_source`), made on first use, with `obj` among its users."""
+    settings = obj.archhead_avatar
+    current = STATE.decoders.get(source)
+    if current is None:
+        current = STATE.decoders[source] = SharedDecoder(source, settings)
+    current.use(obj.session_uid, settings.memory_mb)
+    return current
+
+
+def cull_frame(splat: SplatFrame, view: ViewFrustum) -> SplatFrame:
+    """The Gaussians of a decoded frame that `view` can see (a sphere of SIGMAS standard
+    deviations around each mean meets the frustum): the culling of a cached whole frame."""
+    extent = SIGMAS * np.exp(splat.log_scales.max(axis=1)) + REACH_PAD
+    keep = view.visible(splat.means.T, extent)
+    return SplatFrame(**{k: v[keep] for k, v in splat.arrays().items()}, resolution=splat.resolution)
+
+
 def _source(obj) -> tuple:
-    """The settings a session is built from; a change of any makes a new session."""
+    """What a session's decoder is built from: the checkpoint (path and the digest of its
+    file and identity), the FLAME model and the display and cache settings. A change of any
+    makes a new session; avatars that agree on all of them share one decoder."""
     s = obj.archhead_avatar
+    path = bpy.path.abspath(s.checkpoint)
     return (
-        bpy.path.abspath(s.checkpoint),
-        s.identity,
-        s.head.name if s.head else "",
+        path,
+        _identity_digest(path, s),
         flame_model_path(),
         s.disk_cache,
         bpy.path.abspath(s.cache_dir),
-        s.memory_mb,
         s.view_dependent,
     )
+
+
+def _identity_digest(path: str, settings) -> str:
+    """The digest of the checkpoint file and the identity the avatar is drawn with (the
+    head's when it follows the head): the cache keys' prefix. The file's digest is cached by
+    its size and modification time (a crowd asks for it once per head)."""
+    try:
+        stat = Path(path).stat()
+        stamp = (path, stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        stamp = (path, None, None)
+    try:
+        digest = STATE.file_digests.get(stamp)
+        if digest is None:
+            digest = STATE.file_digests[stamp] = file_digest(path)
+        h = hashlib.sha1(f"{digest}/{PRECISION}/{settings.view_dependent}/".encode())
+        if settings.identity == "HEAD" and settings.head is not None:
+            identity = head_identity(settings.head)
+            h.update(np.ascontiguousarray(identity["identity_shape"], np.float32).tobytes())
+            if identity["identity_offset"] is not None:
+                h.update(np.ascontiguousarray(identity["identity_offset"], np.float32).tobytes())
+    except (OSError, KeyError, ValueError, TypeError):
+        return "unreadable"  # the session's own reading of the file says what is wrong
+    return h.hexdigest()
 
 
 def _disk_cache(settings) -> DiskCache | None:
@@ -165,6 +255,9 @@ def session(obj) -> AvatarSession:
     if failed is not None and failed[0] == source:
         raise failed[1]
     prune_sessions(force=True)
+    if current is not None:  # its settings changed: it leaves its old decoder
+        drop_user(current.source, uid)
+        del STATE.sessions[uid]
     try:
         current = STATE.sessions[uid] = AvatarSession(obj)
     except (OSError, ValueError, KeyError) as exc:  # InputError is a ValueError
@@ -176,7 +269,9 @@ def session(obj) -> AvatarSession:
 
 def drop_session(obj) -> None:
     """Forget the object's session (its checkpoint file was replaced)."""
-    STATE.sessions.pop(obj.session_uid, None)
+    current = STATE.sessions.pop(obj.session_uid, None)
+    if current is not None:
+        drop_user(current.source, obj.session_uid)
     STATE.failures.pop(obj.session_uid, None)
 
 

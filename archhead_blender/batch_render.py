@@ -72,8 +72,7 @@ def render_frames(
     avatars = scene_avatars(scene)
     with fixed_lod(avatars, lod), _restored(scene):
         if decode_only:
-            for obj in avatars:
-                decode_frames(context, obj, frames)
+            decode_frames(context, avatars, frames)
             return []
         if exact:
             return [_render_exact(context, frame, out_dir, avatars) for frame in frames]

@@ -2,7 +2,8 @@
 into the caches, each frame at the level of detail it will have.
 
 The Decode operator (operators/avatar_decode.py) runs `decode_frame` one frame per timer tick;
-scripts call `decode_frames`, which does the same work in one go.
+scripts, batch renders and `--decode-only` call `decode_frames`, which does the same work in
+one go. Both take several avatars and visit each frame once for all of them.
 """
 
 from __future__ import annotations
@@ -25,29 +26,49 @@ def decode_set(scene, obj) -> list[int]:
     )
 
 
-def decode_frame(context, obj, frame: int) -> None:
-    """Move to `frame`, read the codes and level of detail there, decode into the caches."""
-    avatar = session(obj)
+def decode_frame(context, objs, frame: int) -> None:
+    """Move to `frame` once and decode every avatar of `objs` there (the codes and level of
+    detail of each) into the caches. One scene evaluation serves them all: stepping the scene
+    per avatar made a crowd's decode grow as the square of its heads."""
+    avatars = [(obj, session(obj)) for obj in objs]
     context.scene.frame_set(frame)
     depsgraph = context.evaluated_depsgraph_get()
-    codes = frame_codes(obj.archhead_avatar.head, depsgraph, avatar.joint_dirs)
-    lod = avatar.lod_override if avatar.lod_override is not None else avatar_lod(obj, depsgraph)
-    key, _ = avatar.frame(codes, lod)
-    avatar.decoded[frame] = Decoded(key, codes, lod)
+    for obj, avatar in avatars:
+        codes = frame_codes(obj.archhead_avatar.head, depsgraph, avatar.joint_dirs)
+        lod = avatar.lod_override
+        if lod is None:
+            lod = avatar_lod(obj, depsgraph)
+        key, _ = avatar.frame(codes, lod)
+        avatar.decoded[frame] = Decoded(key, codes, lod)
 
 
-def decode_frames(context, obj, frames=None) -> int:
-    """Decode `frames` (default: the object's decode set); returns how many."""
+def scene_plan(scene, objs, frames=None) -> list[tuple[int, list]]:
+    """(frame, the avatars that decode it) in frame order: each avatar's own decode set, or
+    `frames` for all of them."""
+    wanted: dict[int, list] = {}
+    for obj in objs:
+        for frame in decode_set(scene, obj) if frames is None else frames:
+            wanted.setdefault(int(frame), []).append(obj)
+    return sorted(wanted.items())
+
+
+def decode_frames(context, objs, frames=None) -> int:
+    """Decode `frames` (default: each avatar's decode set) of one avatar or several in one
+    pass over the scene's frames; returns how many frames were visited."""
+    objs = [objs] if not isinstance(objs, list | tuple) else list(objs)
     scene = context.scene
-    frames = decode_set(scene, obj) if frames is None else list(frames)
-    session(obj).decoded.clear()
+    plan = scene_plan(scene, objs, frames)
+    for obj in objs:
+        session(obj).decoded.clear()
     start = scene.frame_current
     suspend()
     try:
-        for frame in frames:
-            decode_frame(context, obj, frame)
+        for frame, members in plan:
+            decode_frame(context, members, frame)
     finally:
         scene.frame_set(start)
         resume()
-    refresh_avatar(obj, scene, context.evaluated_depsgraph_get())
-    return len(frames)
+    depsgraph = context.evaluated_depsgraph_get()
+    for obj in objs:
+        refresh_avatar(obj, scene, depsgraph)
+    return len(plan)

@@ -297,4 +297,6 @@ def _store_codes(head, arm_obj, model, rig, seq, info):
     head["archhead_n_expr"] = int(rig.expr.shape[1])
     for k, v in info.items():
         head[f"archhead_{k}"] = v
-    arm_obj["archhead_head"] = head.name
+    # the head itself, not its name: a duplicated rig (Shift+D with its head) then names
+    # the copy, as Blender remaps the pointers among the objects it duplicates
+    arm_obj["archhead_head"] = head

@@ -97,7 +97,11 @@ def show_mean_colour(obj) -> tuple[float, float, float] | None:
 
 
 def write_points(obj, attributes: dict[str, np.ndarray]) -> None:
-    """Replace the point data with `point_attributes` arrays (bulk writes only)."""
+    """Replace the point data with `point_attributes` arrays (bulk writes only). A point mesh
+    that other objects use too (a linked duplicate, Alt+D) is copied first: each avatar
+    shows its own head's frame."""
+    if obj.data.users > 1:
+        obj.data = obj.data.copy()
     mesh = obj.data
     n = len(attributes["position"])
     if len(mesh.vertices) != n:

@@ -26,6 +26,11 @@ class RuntimeState:
     # Point object session_uid -> its AvatarSession, or the settings it failed with and why.
     sessions: dict[int, Any] = field(default_factory=dict)
     failures: dict[int, tuple] = field(default_factory=dict)
+    # A session's source (avatar_session._source) -> the SharedDecoder of every avatar with
+    # that checkpoint, identity and display; dropped with its last user.
+    decoders: dict[tuple, Any] = field(default_factory=dict)
+    # (path, size, mtime) -> the checkpoint file's digest: read once for a crowd of heads.
+    file_digests: dict[tuple, str] = field(default_factory=dict)
     # Point object session_uid -> the last error of its refresh (shown in the N-panel).
     errors: dict[int, str] = field(default_factory=dict)
     # Point object session_uid -> {"done", "total", "cancel"} of a modal decode.
@@ -72,6 +77,17 @@ def object_uids() -> set[int]:
 
 
 def forget_object(uid: int) -> None:
-    """Drop everything held for one object (its runtime and decoded frames with its session)."""
+    """Drop everything held for one object (its decoded frames with its session, and the
+    shared decoder when it was the last to use it)."""
+    current = STATE.sessions.get(uid)
+    if current is not None:
+        drop_user(current.source, uid)
     for registry in (STATE.sessions, STATE.failures, STATE.errors, STATE.decode_progress):
         registry.pop(uid, None)
+
+
+def drop_user(source: tuple, uid: int) -> None:
+    """An object no longer uses the shared decoder of `source`; the last one frees it."""
+    decoder = STATE.decoders.get(source)
+    if decoder is not None and decoder.release(uid):
+        del STATE.decoders[source]

@@ -1,6 +1,7 @@
-"""Decode Frames: the avatar's frame set into the caches, one frame per timer tick, so the
-interface stays live, shows progress (cursor, status bar, N-panel) and stops on Esc or the
-panel's Cancel. The work is archhead_blender.decoding's.
+"""Decode Frames: the frame sets of the selected avatars (the active head's at least) into the
+caches, one scene frame per timer tick for all of them, so the interface stays live, shows
+progress (cursor, status bar, N-panel) and stops on Esc or the panel's Cancel. The work is
+archhead_blender.decoding's.
 
 Decoding is an undo step of its own (a cancelled decode too, once it kept a frame): without
 one, Ctrl+Z right after it went back past Load Avatar, and Ctrl+Shift+Z brought the avatar
@@ -12,15 +13,15 @@ from __future__ import annotations
 import bpy
 
 from archhead_addon.io.errors import InputError
-from archhead_blender.avatar_objects import active_avatar
+from archhead_blender.avatar_objects import active_avatar, selected_avatars
 from archhead_blender.avatar_session import session
-from archhead_blender.decoding import decode_frame, decode_frames, decode_set
+from archhead_blender.decoding import decode_frame, decode_frames, scene_plan
 from archhead_blender.handlers import refresh_avatar, resume, suspend
 from archhead_blender.state import STATE
 
 
 class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
-    """Decode the avatar's frames (keyed, every or every n-th) into the cache; Esc cancels"""
+    """Decode the frames (keyed, every or every n-th) of the selected avatars into the cache, one pass over the scene for all of them; Esc cancels"""
 
     bl_idname = "archhead.decode_avatar"
     bl_label = "Decode Frames"
@@ -31,9 +32,9 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         return active_avatar(context) is not None
 
     def execute(self, context):
-        obj = active_avatar(context)
+        objs = selected_avatars(context)
         try:
-            count = decode_frames(context, obj)
+            count = decode_frames(context, objs)
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -43,36 +44,42 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
     def invoke(self, context, event):
         if bpy.app.background:  # no event loop to drive a modal operator
             return self.execute(context)
-        self.obj = active_avatar(context)
+        self.objs = selected_avatars(context)
         try:
-            session(self.obj).decoded.clear()
+            for obj in self.objs:
+                session(obj).decoded.clear()
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.frames = decode_set(context.scene, self.obj)
-        if not self.frames:
+        self.plan = scene_plan(context.scene, self.objs)
+        if not self.plan:
             self.report({"WARNING"}, "No frames to decode in the scene's frame range")
             return {"CANCELLED"}
         self.start = context.scene.frame_current
-        self.uid = self.obj.session_uid
-        STATE.decode_progress[self.uid] = {"done": 0, "total": len(self.frames), "cancel": False}
+        self.uids = [obj.session_uid for obj in self.objs]
+        progress = {"done": 0, "total": len(self.plan), "cancel": False}
+        for uid in self.uids:  # one record: the panel of any of them shows it
+            STATE.decode_progress[uid] = progress
+        self.progress = progress
         wm = context.window_manager
-        wm.progress_begin(0, max(len(self.frames), 1))
+        wm.progress_begin(0, max(len(self.plan), 1))
         self.timer = wm.event_timer_add(0.001, window=context.window)
         wm.modal_handler_add(self)
         suspend()
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        state = STATE.decode_progress.get(self.uid)
-        if state is None:  # the avatar was deleted (prune_sessions forgot its progress)
+        state = self.progress
+        if any(STATE.decode_progress.get(uid) is not state for uid in self.uids):
+            # an avatar was deleted (prune_sessions forgot its progress)
             return self._finish(context, None, alive=False)
         if event.type == "ESC" or state["cancel"]:
             return self._finish(context, f"Cancelled after {state['done']} frames")
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         try:
-            decode_frame(context, self.obj, self.frames[state["done"]])
+            frame, members = self.plan[state["done"]]
+            decode_frame(context, members, frame)
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return self._finish(context, None)
@@ -92,17 +99,21 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         wm.progress_end()
         if context.workspace is not None:
             context.workspace.status_text_set(None)
-        STATE.decode_progress.pop(self.uid, None)
+        for uid in self.uids:
+            STATE.decode_progress.pop(uid, None)
         context.scene.frame_set(self.start)
         resume()
+        kept = False
         if alive:
-            refresh_avatar(self.obj, context.scene, context.evaluated_depsgraph_get())
+            depsgraph = context.evaluated_depsgraph_get()
+            for obj in self.objs:
+                refresh_avatar(obj, context.scene, depsgraph)
+            kept = any(session(obj).decoded for obj in self.objs)
         _redraw_sidebars(context)
         if message:
             self.report({"INFO"}, message)
         # FINISHED makes the undo step: a decode that kept frames, cancelled or not
-        kept = bool(message) and alive and bool(session(self.obj).decoded)
-        return {"FINISHED"} if kept else {"CANCELLED"}
+        return {"FINISHED"} if kept and message else {"CANCELLED"}
 
 
 class ARCHHEAD_OT_cancel_decode(bpy.types.Operator):
