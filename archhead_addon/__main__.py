@@ -87,7 +87,7 @@ def main(argv=None) -> int:
     args.options = rest
     # Ctrl-C and Blender's Cancel (SIGINT) stop the command even when it was started from a
     # process that ignores SIGINT (a shell's background job, and Blender started as one):
-    # an ignored SIGINT is inherited, and a cancelled tracking once ran on to the end.
+    # an ignored SIGINT is inherited, and a cancelled tracking would run on to the end.
     signal.signal(signal.SIGINT, signal.default_int_handler)
     return run_command(lambda: args.run(args))
 

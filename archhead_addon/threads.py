@@ -1,12 +1,12 @@
 """Thread counts, held to the cores this process may run on.
 
 More threads than cores is never faster, and far more is fatal: 1e6 splat-kernel threads
-segfaulted, large OpenMP teams under a memory cap made the runtime exit the whole process
-(Blender with it), and `"threads": 1000000` in a training config hung. Every count read from a
+segfault, large OpenMP teams under a memory cap make the runtime exit the whole process
+(Blender with it), and `"threads": 1000000` in a training config hangs. Every count read from a
 file, a setting, an argument or the environment goes through `thread_count` (or, for the
 variables the OpenMP and BLAS runtimes read when they load, `limit_thread_environment`).
 Code that runs numpy products on threads of its own holds BLAS to one thread meanwhile
-(`one_blas_thread`): two callers each asking OpenBLAS for every core left the cores waiting
+(`one_blas_thread`): two callers each asking OpenBLAS for every core leave the cores waiting
 on each other, 1.6x the CPU time for the same work.
 """
 

@@ -5,7 +5,7 @@ use from the object's settings (so a reopened .blend, a render and a farm job re
 A session lives as long as its object: Blender tells Python nothing when an object is
 deleted or purged, so `prune_sessions` compares the sessions with bpy.data's objects after
 every depsgraph update and frame change (the handlers) and before a new session is made.
-A decoded frame set is hundreds of MB; fifteen deleted avatars held 2.5 GB before."""
+A decoded frame set is hundreds of MB: unpruned, fifteen deleted avatars hold 2.5 GB."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Avatar from Video (issue 31): a video to an avatar on its head, in one operator.
+"""Avatar from Video: a video to an avatar on its head, in one operator.
 
 The stages are the ones Track Video, File > Import and Train Avatar run, chained in one
 output folder laid out as `python -m archhead_addon avatar VIDEO --out DIR` lays it out

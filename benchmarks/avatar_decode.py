@@ -7,7 +7,7 @@ Runs with 2 BLAS / OpenMP threads (the process restarts itself with them set, si
 thread count is fixed when numpy loads). The avatar is an untrained one of the model (the
 built-in by default); the decode cost does not depend on the weights' values. "fp32 ms" is
 the runtime's default, chunks of texels decoded on 2 threads; "1 thread" decodes them one
-after another with BLAS threading each product (the decode before issue 19). On cores
+after another with BLAS threading each product (`runtime.threads = 1`). On cores
 shared with other jobs, the CPU time per decode split between this thread and the decoding
 threads (printed after the table) says what free cores would take. Last, a render loop
 against the same loop with numpy's OpenBLAS held to one thread: where its threads ran (a

@@ -5,8 +5,8 @@
 One render's perceptual term as training takes it: `compare` against a shared reference,
 forward and backward to the image, on a random image pair of --size pixels. Prints the
 median milliseconds of each precision (the two alternate, round by round) and how far the
-bfloat16 distance and image gradient are from float32's. The issue 19 question: whether
-lower precision makes the term cheaper per unit of quality (docs/training_profile.md).
+bfloat16 distance and image gradient are from float32's: whether lower precision makes the
+term cheaper per unit of quality (docs/training_profile.md).
 """
 
 from __future__ import annotations

@@ -4,8 +4,9 @@
 
 The face-like scene (`scenes.face_scene`) at 60k Gaussians, 512² (or N, S²), one thread.
 Rows, each the best of --repeats forward and backward passes (wall clock around the call):
-- the kernel of git revision --before (default c8a0463, before issue 19), compiled from
-  `git show` into a temporary folder;
+- the kernel of git revision --before (default c8a0463: the float64 scalar projection,
+  recomputed in the backward, and AVX2 compositing, the reference for the figures in
+  docs/bench_splat.md), compiled from `git show` into a temporary folder;
 - this tree's kernel on each compositing path the CPU runs (kernel.set_simd), with its
   phase split (stats(): projection, sort and binning, compositing; backward compositing,
   backward per-Gaussian reduction and projection VJP), and its forward on the best path for

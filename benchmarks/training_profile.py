@@ -1,12 +1,13 @@
-"""Where a training step's time goes, as issue 19 found it and now.
+"""Where a training step's time goes: this tree's step against a plain rebuild of it.
 
     python benchmarks/training_profile.py [--data DIR] [--config cpu|FILE]
                                           [--avatar RUN/avatar.npz] [--steps 8] [--threads 2]
 
 Runs real steps of `train.loop.Trainer` (stage 1, then stage 2 from step `stage1_steps`) on
 a subject folder, each from the same avatar (the steps' updates are undone), alternating,
-step by step, this commit's step ("after") with the step before issue 19 ("before"), whose
-parts this file rebuilds:
+step by step, this tree's step ("after") with a plain one ("before": the straightforward
+torch form of the parts that the step's optimisations replace, so the ratios say what each
+optimisation is worth), whose parts this file rebuilds:
 - the feature-field resample: F.interpolate per level, a channel-major blend, texels read
   by advanced indexing (`interpolated_texel_features`), not `avatar.resample`'s products;
 - ST-LPIPS: channel-major, the first convolution's input gradient by the library
@@ -14,7 +15,7 @@ parts this file rebuilds:
 - the decoder's first layer on the concatenated texel inputs, the heads' inputs sliced
   (`concatenated_decoder_forward`).
 (Not rebuilt: the splat kernel, whose versions `splat_versions.py` compares, and FLAME's
-identity product per frame, now baked into the template, 1-2 % of a render.)
+identity product per frame, which the template bakes in, 1-2 % of a render.)
 
 The split times each part alone, forward and backward, on the same frame and levels as the
 step: the resample; the rest of the avatar (FLAME, position map, PE, the heads: the
@@ -43,11 +44,11 @@ from archhead_addon.timing import restart_with_threads
 
 DEFAULT_DATA = Path("out/synth_track")  # scripts/synthetic_subject.py --frames 120 --size 256
 PARTS = ("resample", "decoder", "kernel", "ST-LPIPS", "Adam", "data")
-RATIOS = ("resample", "decoder", "ST-LPIPS")  # the parts that issue 19 changed
+RATIOS = ("resample", "decoder", "ST-LPIPS")  # the parts "before" rebuilds
 
 
 def interpolated_texel_features(features, plan, texel):
-    """The resample before the matrix form, for the 'before' column: each level through
+    """The resample without the matrix form, for the 'before' column: each level through
     F.interpolate (its own copy at S included), blended channel-major, texels indexed."""
     import torch.nn.functional as F
 
@@ -63,7 +64,7 @@ def interpolated_texel_features(features, plan, texel):
 
 
 def concatenated_decoder_forward(decoder, texel, frame):
-    """`Decoder.forward` before issue 19: one product on the concatenated texel inputs (so
+    """`Decoder.forward` in its plain form: one product on the concatenated texel inputs (so
     autograd computes the PE's input gradient too), the heads' inputs sliced from h."""
     import torch
     import torch.nn.functional as F
@@ -75,7 +76,7 @@ def concatenated_decoder_forward(decoder, texel, frame):
 
 
 def library_lpips():
-    """ST-LPIPS before issue 19: channel-major, the library's backward for every layer."""
+    """ST-LPIPS in its plain form: channel-major, the library's backward for every layer."""
     import torch
 
     from archhead_addon.train import perceptual
@@ -100,8 +101,8 @@ def library_lpips():
 
 
 @contextlib.contextmanager
-def before_issue_19(trainer, library):
-    """The trainer with the parts of the step before issue 19 (the module docstring)."""
+def plain_step(trainer, library):
+    """The trainer with the plain step's parts (the module docstring)."""
     module, loss, decoder = avatar_module(), trainer.loss, trainer.avatar.decoder
     saved = module.texel_features, loss.perceptual
     module.texel_features = interpolated_texel_features
@@ -314,7 +315,7 @@ def main(argv=None) -> None:
         trainer = make_trainer(config, dataset, frames, args.avatar, tmp)
     library = library_lpips() if trainer.loss.perceptual is not None else None
     variants = {
-        "before": partial(before_issue_19, trainer, library),
+        "before": partial(plain_step, trainer, library),
         "after": contextlib.nullcontext,
     }
     profiler = Profiler(trainer)

@@ -4,8 +4,8 @@ progress (cursor, status bar, N-panel) and stops on Esc or the panel's Cancel. T
 archhead_blender.decoding's.
 
 Decoding is an undo step of its own (a cancelled decode too, once it kept a frame): without
-one, Ctrl+Z right after it went back past Load Avatar, and Ctrl+Shift+Z brought the avatar
-back without its decoded frames. The decoded frames are a cache of the session, not scene
+one, Ctrl+Z right after it would go back past Load Avatar, and Ctrl+Shift+Z would bring the
+avatar back without its decoded frames. The decoded frames are a cache of the session, not scene
 data: undoing the step keeps them (the avatar object, and with it its session, stays)."""
 
 from __future__ import annotations

@@ -64,9 +64,9 @@ def _ssim_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     if min(pred.shape[:2]) < SSIM_WINDOW:
         raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW} px a side")
     x, y = (t.double().permute(2, 0, 1)[:, None] for t in (pred, target))  # (C,1,H,W)
-    # The five local sums in one batch, the window as a row then a column: torch's float64
-    # convolution unfolds the input once per tap, and the 11 x 11 window's 121 taps made the
-    # evaluation spend most of its time faulting in fresh memory (22 taps now).
+    # The five local sums in one batch, the window as a row then a column (22 taps): torch's
+    # float64 convolution unfolds the input once per tap, and the 11 x 11 window's 121 taps
+    # would spend most of the evaluation's time faulting in fresh memory.
     g = gaussian_kernel()
     sums = F.conv2d(
         F.conv2d(torch.cat([x, y, x * x, y * y, x * y]), g[None, None, None]),

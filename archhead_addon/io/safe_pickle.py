@@ -132,8 +132,8 @@ def _latin1_encode(text, encoding="utf-8"):
 
 class _SizedNdarray:
     """`numpy.ndarray` as a pickle names it. Called (REDUCE), an empty array whose size is
-    checked first: `ndarray((100000, 100000))` once allocated 80 GB of address space and
-    failed in numpy. Handed to a reconstructor, it stands for ndarray itself."""
+    checked first: unchecked, `ndarray((100000, 100000))` allocates 80 GB of address space
+    and fails in numpy. Handed to a reconstructor, it stands for ndarray itself."""
 
     def __init__(self, max_bytes: int):
         self.max_bytes = max_bytes
