@@ -156,7 +156,8 @@ class AvatarSession:
 
     def __init__(self, obj):
         self.source = _source(obj)
-        self.shared = shared_decoder(self.source, obj)
+        self.decoder_key = decoder_key(obj)
+        self.shared = shared_decoder(self.decoder_key, obj)
         self.decoded: dict[int, Decoded] = {}
         self.shown: tuple | None = None  # what the point object holds now
         self.lod_override: float | None = None  # batch renders fix the level of detail
@@ -177,12 +178,12 @@ class AvatarSession:
         return self.shared.frame(codes, lod, view, sh_degree)
 
 
-def shared_decoder(source: tuple, obj) -> SharedDecoder:
-    """The decoder of `source` (`_source`), made on first use, with `obj` among its users."""
+def shared_decoder(key: tuple, obj) -> SharedDecoder:
+    """The decoder of `key` (`decoder_key`), made on first use, with `obj` among its users."""
     settings = obj.archhead_avatar
-    current = STATE.decoders.get(source)
+    current = STATE.decoders.get(key)
     if current is None:
-        current = STATE.decoders[source] = SharedDecoder(source, settings)
+        current = STATE.decoders[key] = SharedDecoder(key, settings)
     current.use(obj.session_uid, settings.memory_mb)
     return current
 
@@ -192,35 +193,43 @@ def cull_frame(splat: SplatFrame, view: ViewFrustum) -> SplatFrame:
     deviations around each mean meets the frustum): the culling of a cached whole frame."""
     extent = SIGMAS * np.exp(splat.log_scales.max(axis=1)) + REACH_PAD
     keep = view.visible(splat.means.T, extent)
-    return SplatFrame(**{k: v[keep] for k, v in splat.arrays().items()}, resolution=splat.resolution)
+    kept = {k: v[keep] for k, v in splat.arrays().items()}
+    return SplatFrame(**kept, resolution=splat.resolution)
 
 
 def _source(obj) -> tuple:
-    """What a session's decoder is built from: the checkpoint (path and the digest of its
-    file and identity), the FLAME model and the display and cache settings. A change of any
-    makes a new session; avatars that agree on all of them share one decoder."""
+    """The settings a session is built from, and the checkpoint file's size and time: a
+    change of any makes a new session. Cheap, as the handlers ask for it after every update
+    of every avatar (the file's digest and the identity are read only when it changes)."""
     s = obj.archhead_avatar
     path = bpy.path.abspath(s.checkpoint)
-    return (
-        path,
-        _identity_digest(path, s),
-        flame_model_path(),
-        s.disk_cache,
-        bpy.path.abspath(s.cache_dir),
-        s.view_dependent,
-    )
+    try:
+        stat = Path(path).stat()
+        stamp = (stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        stamp = None
+    head = s.head.session_uid if s.head is not None else None
+    return (path, stamp, s.identity, head, flame_model_path(), s.disk_cache,
+            bpy.path.abspath(s.cache_dir), s.view_dependent, s.memory_mb)  # fmt: skip
+
+
+def decoder_key(obj) -> tuple:
+    """What avatars must agree on to share a decoder: the checkpoint (its path, and the
+    digest of its file and of the identity it is drawn with), the FLAME model and the
+    display and disk cache settings."""
+    s = obj.archhead_avatar
+    path = bpy.path.abspath(s.checkpoint)
+    return (path, _identity_digest(path, s), flame_model_path(), s.disk_cache,
+            bpy.path.abspath(s.cache_dir), s.view_dependent)  # fmt: skip
 
 
 def _identity_digest(path: str, settings) -> str:
     """The digest of the checkpoint file and the identity the avatar is drawn with (the
-    head's when it follows the head): the cache keys' prefix. The file's digest is cached by
-    its size and modification time (a crowd asks for it once per head)."""
+    head's when it follows the head): the cache keys' prefix. The file's digest is kept by
+    its size and modification time (a crowd of heads reads the file once)."""
     try:
         stat = Path(path).stat()
         stamp = (path, stat.st_size, stat.st_mtime_ns)
-    except OSError:
-        stamp = (path, None, None)
-    try:
         digest = STATE.file_digests.get(stamp)
         if digest is None:
             digest = STATE.file_digests[stamp] = file_digest(path)
@@ -256,7 +265,7 @@ def session(obj) -> AvatarSession:
         raise failed[1]
     prune_sessions(force=True)
     if current is not None:  # its settings changed: it leaves its old decoder
-        drop_user(current.source, uid)
+        drop_user(current.decoder_key, uid)
         del STATE.sessions[uid]
     try:
         current = STATE.sessions[uid] = AvatarSession(obj)
@@ -271,7 +280,7 @@ def drop_session(obj) -> None:
     """Forget the object's session (its checkpoint file was replaced)."""
     current = STATE.sessions.pop(obj.session_uid, None)
     if current is not None:
-        drop_user(current.source, obj.session_uid)
+        drop_user(current.decoder_key, obj.session_uid)
     STATE.failures.pop(obj.session_uid, None)
 
 

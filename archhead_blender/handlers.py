@@ -40,13 +40,14 @@ def resume() -> None:
 
 
 def frame_to_show(
-    obj, scene, depsgraph, culled: bool = False, full_colour: bool = False
+    obj, scene, depsgraph, culled: bool = False, full_colour: bool = False, avatar=None
 ) -> tuple[str, SplatFrame]:
     """(cache key, Gaussians) the avatar shows at the scene's frame: the codes and level of
     detail there, or with "Hold" between decoded frames, the last decoded frame's; `culled`
     leaves out what the scene camera cannot see (archhead_addon.avatar.culling),
-    `full_colour` decodes every SH band even where the display shows the DC term (export)."""
-    avatar = session(obj)
+    `full_colour` decodes every SH band even where the display shows the DC term (export);
+    `avatar`: the object's session when the caller has it."""
+    avatar = avatar or session(obj)
     settings = obj.archhead_avatar
     view = camera_frustum(obj, scene, depsgraph) if culled else None
     degree = avatar.runtime.config.sh_degree if full_colour else None
@@ -70,7 +71,7 @@ def culls(obj, depsgraph) -> bool:
 def refresh_avatar(obj, scene, depsgraph) -> bool:
     """Bring one avatar's points up to date; True if they were rewritten."""
     avatar = session(obj)
-    key, splat = frame_to_show(obj, scene, depsgraph, culls(obj, depsgraph))
+    key, splat = frame_to_show(obj, scene, depsgraph, culls(obj, depsgraph), avatar=avatar)
     view_from = None
     if avatar.sh_degree > 0:  # view-dependent colour on an avatar that has it
         view_from = camera_in_object(obj, scene, depsgraph)

@@ -14,6 +14,8 @@ from archhead_addon.camera import BlenderCamera, affine_inverse
 from archhead_addon.flame.model import JOINT_NAMES
 from archhead_addon.splat.blender_render import blender_camera_to_opencv
 
+from .state import STATE
+
 
 def head_rig(head):
     """The armature that carries the head's bones (its parent, as the import builds it)."""
@@ -26,29 +28,45 @@ def head_rig(head):
 def expression_values(head, depsgraph, n_expr: int) -> np.ndarray:
     """The values of expr_000 .. expr_{n-1} (a muted or missing key counts as 0)."""
     key = head.data.shape_keys
-    out = np.zeros(n_expr)
     if key is None or n_expr == 0:
-        return out
+        return np.zeros(n_expr)
     blocks = key.evaluated_get(depsgraph).key_blocks
-    values = np.empty(len(blocks), np.float32)
-    blocks.foreach_get("value", values)
+    values = np.zeros(len(blocks) + 1, np.float32)  # the last: what a missing key reads
+    blocks.foreach_get("value", values[:-1])
     muted = np.empty(len(blocks), bool)
     blocks.foreach_get("mute", muted)
-    for i in range(n_expr):
-        j = blocks.find(f"expr_{i:03d}")
-        if j >= 0 and not muted[j]:
-            out[i] = values[j]
-    return out
+    values[:-1][muted] = 0.0
+    return values[_expression_slots(tuple(blocks.keys()), n_expr)].astype(np.float64)
+
+
+def _expression_slots(names: tuple, n_expr: int) -> np.ndarray:
+    """Where expr_000 .. expr_{n-1} sit among the shape keys `names` (len(names) for a
+    missing one), kept per name list: the handlers ask for every head after every update."""
+    slots = STATE.expression_slots.get((names, n_expr))
+    if slots is None:
+        index = {name: j for j, name in enumerate(names)}
+        slots = np.array([index.get(f"expr_{i:03d}", len(names)) for i in range(n_expr)])
+        if len(STATE.expression_slots) > 64:  # heads of other models and key sets come and go
+            STATE.expression_slots.clear()
+        STATE.expression_slots[names, n_expr] = slots
+    return slots
 
 
 def frame_codes(head, depsgraph, joint_dirs: np.ndarray) -> FrameCodes:
     rig = head_rig(head).evaluated_get(depsgraph)
-    basis = np.array([np.array(rig.pose.bones[name].matrix_basis) for name in JOINT_NAMES])
-    rotations = basis[:, :3, :3] / np.linalg.norm(basis[:, :3, :3], axis=1, keepdims=True)
+    basis = np.array([rig.pose.bones[name].matrix_basis for name in JOINT_NAMES])
     n_expr = min(int(head.get("archhead_n_expr", 0)), len(joint_dirs))
-    return codes_from_rig(
-        rotations, basis[0, :3, 3], expression_values(head, depsgraph, n_expr), joint_dirs
-    )
+    expr = expression_values(head, depsgraph, n_expr)
+    # A head whose pose and keys did not change since it was last read gets the same codes
+    # back: the conversion to axis-angles costs more than reading them.
+    raw = (basis.tobytes(), expr.tobytes(), id(joint_dirs))
+    memo = STATE.frame_codes.get(head.session_uid)
+    if memo is not None and memo[0] == raw:
+        return memo[1]
+    rotations = basis[:, :3, :3] / np.linalg.norm(basis[:, :3, :3], axis=1, keepdims=True)
+    codes = codes_from_rig(rotations, basis[0, :3, 3], expr, joint_dirs)
+    STATE.frame_codes[head.session_uid] = (raw, codes)
+    return codes
 
 
 def avatar_lod(obj, depsgraph) -> float:

@@ -26,8 +26,8 @@ class RuntimeState:
     # Point object session_uid -> its AvatarSession, or the settings it failed with and why.
     sessions: dict[int, Any] = field(default_factory=dict)
     failures: dict[int, tuple] = field(default_factory=dict)
-    # A session's source (avatar_session._source) -> the SharedDecoder of every avatar with
-    # that checkpoint, identity and display; dropped with its last user.
+    # avatar_session.decoder_key -> the SharedDecoder of every avatar with that checkpoint,
+    # identity and display; dropped with its last user.
     decoders: dict[tuple, Any] = field(default_factory=dict)
     # (path, size, mtime) -> the checkpoint file's digest: read once for a crowd of heads.
     file_digests: dict[tuple, str] = field(default_factory=dict)
@@ -35,6 +35,10 @@ class RuntimeState:
     errors: dict[int, str] = field(default_factory=dict)
     # Point object session_uid -> {"done", "total", "cancel"} of a modal decode.
     decode_progress: dict[int, dict] = field(default_factory=dict)
+    # (shape-key names, n_expr) -> where the expression keys sit (scene_state); and a head's
+    # session_uid -> its last (raw pose and keys, FrameCodes): the handlers' fast path.
+    expression_slots: dict[tuple, Any] = field(default_factory=dict)
+    frame_codes: dict[int, tuple] = field(default_factory=dict)
     # How many objects bpy.data held when the sessions were last checked against them.
     objects_seen: int = -1
     # Nesting depth of bulk work that moves frames itself (handlers pause meanwhile).
@@ -81,13 +85,14 @@ def forget_object(uid: int) -> None:
     shared decoder when it was the last to use it)."""
     current = STATE.sessions.get(uid)
     if current is not None:
-        drop_user(current.source, uid)
+        drop_user(current.decoder_key, uid)
     for registry in (STATE.sessions, STATE.failures, STATE.errors, STATE.decode_progress):
         registry.pop(uid, None)
+    STATE.frame_codes.pop(uid, None)  # a head's uid, when the object was a head
 
 
-def drop_user(source: tuple, uid: int) -> None:
-    """An object no longer uses the shared decoder of `source`; the last one frees it."""
-    decoder = STATE.decoders.get(source)
+def drop_user(key: tuple, uid: int) -> None:
+    """An object no longer uses the shared decoder of `key`; the last one frees it."""
+    decoder = STATE.decoders.get(key)
     if decoder is not None and decoder.release(uid):
-        del STATE.decoders[source]
+        del STATE.decoders[key]

@@ -35,11 +35,17 @@ class FrameCodes:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     def digest(self) -> str:
-        """Names the codes in cache keys: a hash of their float32 values (what Blender holds)."""
-        h = hashlib.sha1()
-        for f in fields(self):
-            h.update(np.ascontiguousarray(getattr(self, f.name), np.float32).tobytes())
-        return h.hexdigest()
+        """Names the codes in cache keys: a hash of their float32 values (what Blender holds).
+        Kept with the codes (their arrays are not changed once made), as every refresh of a
+        head that did not move asks again."""
+        known = self.__dict__.get("_digest")
+        if known is None:
+            h = hashlib.sha1()
+            for f in fields(self):
+                h.update(np.ascontiguousarray(getattr(self, f.name), np.float32).tobytes())
+            known = h.hexdigest()
+            object.__setattr__(self, "_digest", known)
+        return known
 
 
 def expression_joint_dirs(model: FlameModel, n_expr: int) -> np.ndarray:

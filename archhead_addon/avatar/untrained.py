@@ -21,10 +21,9 @@ def main(argv=None) -> int:
     import torch
 
     from ..flame import load_model
+    from ..train.config import TrainConfig
     from .checkpoint import save_avatar
     from .model import ArchHeadAvatar
-
-    from ..train.config import TrainConfig
 
     torch.manual_seed(args.seed)
     model = load_model()
