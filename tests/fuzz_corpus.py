@@ -162,14 +162,20 @@ def _clip():
     return {"exp": rng.normal(size=(5, 5)).astype(F32), "jaw": np.zeros((5, 3), F32), "fps": 30.0}
 
 
-def _checkpoint_arrays():
-    from archhead_addon.avatar.checkpoint_format import AvatarCheckpoint, write_checkpoint
-    from archhead_addon.avatar.config import AvatarConfig, parameter_shapes
+def _tiny_avatar_config():
+    from archhead_addon.avatar.config import AvatarConfig
 
-    config = AvatarConfig(
+    return AvatarConfig(
         s_max=8, s_min=4, levels=(4,), feature_dim=2, n_expr=3, drive_dim=2, pe_freqs=1,
         mapping_hidden=4, hidden=4, colour_hidden=4, head_layers=1,
     )  # fmt: skip
+
+
+def _checkpoint_arrays():
+    from archhead_addon.avatar.checkpoint_format import AvatarCheckpoint, write_checkpoint
+    from archhead_addon.avatar.config import parameter_shapes
+
+    config = _tiny_avatar_config()
     rng = np.random.default_rng(9)
     params = {k: rng.normal(size=s).astype(F32) for k, s in parameter_shapes(config).items()}
     ckpt = AvatarCheckpoint(
@@ -206,15 +212,24 @@ def _train_config():
 
 
 def _train_state():
+    """A state as Trainer.save writes it, of a tiny avatar: the model's tensors, Adam's groups
+    features, mapping and decoder, and the moments of the parameters that had a gradient."""
     import torch
 
-    from archhead_addon.avatar.config import AvatarConfig
+    from archhead_addon.avatar.config import parameter_shapes
     from archhead_addon.train.config import TrainConfig
 
     torch.manual_seed(0)
-    params = {"features.4": torch.randn(2, 4, 4), "decoder.w": torch.randn(3, 5)}
-    opt = torch.optim.Adam([{"params": [p.requires_grad_()], "name": k} for k, p in params.items()])
-    sum(p.sum() for p in params.values()).backward()
+    config = _tiny_avatar_config()
+    params = {k: torch.randn(s) for k, s in parameter_shapes(config).items()}
+    opt = torch.optim.Adam(
+        [
+            {"params": [p.requires_grad_() for k, p in params.items() if k.startswith(g)],
+             "name": g}
+            for g in ("features", "mapping", "decoder")
+        ]
+    )  # fmt: skip
+    (params["features.4"].sum() + params["mapping.0.bias"].sum()).backward()
     opt.step()
     return {
         "format": "archhead-train-state",
@@ -223,10 +238,46 @@ def _train_state():
         "elapsed": 1.5,
         "config": TrainConfig().to_json(),
         "model_id": "m",
-        "avatar_config": AvatarConfig().to_json(),
-        "model": {k: v.detach() for k, v in params.items()},
+        "avatar_config": config.to_json(),
+        "model": {"identity_shape": torch.randn(6), **{k: v.detach() for k, v in params.items()}},
         "optimizer": opt.state_dict(),
     }
+
+
+def _train_state_damage(state: dict) -> list[tuple[str, dict]]:
+    """What no byte damage makes: a state whose parts disagree with each other (each would
+    fail in Trainer.resume or in Adam's first step)."""
+    import copy
+
+    out = []
+
+    def case(label, change):
+        s = copy.deepcopy(state)
+        change(s)
+        out.append((label, s))
+
+    moments = state["optimizer"]["state"]
+    first = next(iter(moments))
+    case("model.identity_shape dropped", lambda s: s["model"].pop("identity_shape"))
+    case("model.identity_shape (2, 3)",
+         lambda s: s["model"].__setitem__("identity_shape", np.zeros((2, 3))))  # fmt: skip
+    case("model.mapping.0.bias wrong shape",
+         lambda s: s["model"].__setitem__("mapping.0.bias", np.zeros(7, F32)))  # fmt: skip
+    case("model tensor of another model", lambda s: s["model"].__setitem__("x.w", np.zeros(2)))
+    case("optimizer moment wrong shape",
+         lambda s: s["optimizer"]["state"][first].update(exp_avg=np.zeros(3, F32)))  # fmt: skip
+    case("optimizer moment without step", lambda s: s["optimizer"]["state"][first].pop("step"))
+    case("optimizer moment of no parameter",
+         lambda s: s["optimizer"]["state"].update({999: {"step": np.array(1, F32)}}))  # fmt: skip
+    case("optimizer group dropped", lambda s: s["optimizer"]["param_groups"].pop())
+    case("optimizer groups swapped", lambda s: s["optimizer"]["param_groups"].reverse())
+    case("optimizer group parameter dropped",
+         lambda s: s["optimizer"]["param_groups"][2]["params"].pop())  # fmt: skip
+    case("optimizer parameter listed twice",
+         lambda s: s["optimizer"]["param_groups"][2]["params"].__setitem__(0, 0))  # fmt: skip
+    case("refinement without its groups",
+         lambda s: s.__setitem__("refinement", {"expr": np.zeros((4, 5), F32)}))  # fmt: skip
+    return out
 
 
 def _ply_bytes():
@@ -470,6 +521,17 @@ def npz_mutations(arrays: dict, rng) -> list[tuple[str, bytes]]:
                         f"{k}.npy", npy_header_bomb(shape) if k == key else member.getvalue()
                     )
             out.append((f"{key} header claims {shape}", buf.getvalue()))
+    garbled = io.BytesIO()  # a header literal numpy's tokenizer fails on (TokenError)
+    with zipfile.ZipFile(garbled, "w") as z:
+        for i, (k, v) in enumerate(arrays.items()):
+            member = io.BytesIO()
+            np.save(member, v)
+            data = member.getvalue()
+            if i == 0:
+                end = data.index(b"}")
+                data = data[:10] + b"{'descr': '''".ljust(end - 9) + data[end + 1 :]
+            z.writestr(f"{k}.npy", data)
+    out.append(("npy header with an unterminated string", garbled.getvalue()))
     obj = io.BytesIO()
     with zipfile.ZipFile(obj, "w") as z:
         for k, v in arrays.items():
@@ -652,7 +714,8 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
            + byte_mutations(fast_pickle(flame), rng))  # fmt: skip
     seq = _sequence_arrays()
     family("canonical npz", "s.npz", npz_bytes(seq),
-           npz_mutations(seq, rng) + byte_mutations(npz_bytes(seq), rng))  # fmt: skip
+           npz_mutations(seq, rng) + byte_mutations(npz_bytes(seq), rng)
+           + _canonical_cases(seq))  # fmt: skip
     vt = _vhap_arrays(n=4)
     vt.update(focal_length=np.array([1.5], F32), image_size=np.array([256, 256]))
     family("vhap tracked npz", "tracked_flame_params.npz", npz_bytes(vt),
@@ -690,22 +753,48 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
     with np.load(__import__("io").BytesIO(cache)) as z:
         cache_arrays = {k: z[k] for k in z.files}
     family("decode cache", "0123abcd.npz", cache,
-           npz_mutations(cache_arrays, rng) + byte_mutations(cache, rng))  # fmt: skip
+           npz_mutations(cache_arrays, rng) + byte_mutations(cache, rng)
+           + _cache_cases(cache_arrays))  # fmt: skip
     config = _train_config()
     text = json.dumps(config).encode()
-    family(
-        "training config", "c.json", text, json_mutations(config, rng) + byte_mutations(text, rng)
-    )
+    tiny_tau = json.dumps({**config, "avatar": {**config["avatar"], "tau": 1e-300}}).encode()
+    family("training config", "c.json", text,
+           json_mutations(config, rng) + byte_mutations(text, rng)
+           + [("avatar.tau 1e-300", tiny_tau)])  # fmt: skip
     state = _train_state()
     state_np = _numpy_tree(state)
     family("train_state", "train_state.pt", torch_bytes(state_np),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(state_np, rng)]
+           + [(lbl, torch_bytes(d)) for lbl, d in _train_state_damage(state_np)]
            + pickle_mutations(state_np, rng, marker, splice_torch)
            + zip_mutations(torch_bytes(state_np))
            + byte_mutations(torch_bytes(state_np), rng))  # fmt: skip
     ply = _ply_bytes()
     family("PLY", "a.ply", ply, ply_mutations(ply, rng) + byte_mutations(ply, rng))
     return items
+
+
+def _canonical_cases(seq: dict) -> list[tuple[str, bytes]]:
+    """Finite values no camera has (validation.py): each alone in an otherwise good file."""
+    negative = {**seq, "K": seq["K"].copy()}
+    negative["K"][:, 0, 0] *= -1
+    no_size = {k: v for k, v in seq.items() if k != "image_size"}
+    return [
+        ("K with a negative focal length", npz_bytes(negative)),
+        ("K without image_size", npz_bytes(no_size)),
+    ]
+
+
+def _cache_cases(arrays: dict) -> list[tuple[str, bytes]]:
+    """Cache frames whose checksum matches what they hold, every value impossible."""
+    from archhead_addon.io.checksum import KEY, with_checksum
+
+    plain = {k: v for k, v in arrays.items() if k != KEY}
+    return [
+        (f"resolution {r} with a valid checksum",
+         npz_bytes(with_checksum({**plain, "resolution": np.int64(r)})))
+        for r in (-1, 1 << 40)
+    ]  # fmt: skip
 
 
 def _numpy_tree(value):
@@ -720,6 +809,26 @@ def _numpy_tree(value):
     return value
 
 
+def _vhap_cases(transforms: dict, params: dict) -> list[tuple[str, str, bytes]]:
+    """Folders whose files are each well formed and disagree, or hold impossible values."""
+    import copy
+
+    def changed(change):
+        t = copy.deepcopy(transforms)
+        change(t)
+        return json.dumps(t).encode()
+
+    wider = {**params, "expr": np.zeros((1, 7), F32), "shape": np.zeros(9, F32)}
+    return [
+        ("frame files of different widths", "flame_param/00001.npz", npz_bytes(wider)),
+        ("a singular transform_matrix", "transforms.json",
+         changed(lambda t: t["frames"][1].update(transform_matrix=np.zeros((4, 4)).tolist()))),
+        ("timestep_index true (timestep 1 twice)", "transforms.json",
+         changed(lambda t: t["frames"][0].update(timestep_index=True))),
+        ("negative fl_x", "transforms.json", changed(lambda t: t.update(fl_x=-500.0))),
+    ]  # fmt: skip
+
+
 def _vhap_folders(root: Path, items: list, rng) -> None:
     """VHAP export folders: each with one damaged file (transforms.json or a flame_param)."""
     params = _vhap_arrays()
@@ -731,6 +840,7 @@ def _vhap_folders(root: Path, items: list, rng) -> None:
     good = npz_bytes(params)
     variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in npz_mutations(params, rng)[::2]]
     variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in byte_mutations(good, rng)[::2]]
+    variants += _vhap_cases(transforms, params)
     for label, target, data in variants:
         folder = root / f"{len(items):05d}" / "vhap"
         (folder / "flame_param").mkdir(parents=True)

@@ -145,6 +145,18 @@ SIZE_LIMITS = {
     "head_layers": 16,
 }
 MAX_LEVEL = 4096
+# Finite but absurd values refused, by field: (low, high, why). A tau of 1e-300 makes every
+# blend weight exp(-1e300) = 0 (NaN texels); below 0.02 the weights of a level ln 4096 away
+# underflow float64; above 100 every level weighs the same.
+RANGES = {
+    "tau": (0.02, 100.0, "the blend temperature of eq. 5; the paper's is 0.35"),
+    "offset_unit": (1e-6, 1.0, "metres per unit of the offset head's output"),
+    "log_scale_min": (math.log(1e-7), math.log(1.0), "log of a Gaussian's scale in metres"),
+    "log_scale_max": (math.log(1e-7), math.log(1.0), "log of a Gaussian's scale in metres"),
+    "init_opacity": (1e-6, 1 - 1e-6, "an opacity in (0, 1): its logit is the bias"),
+    "init_rgb": (0.0, 1.0, "colour components in 0..1"),
+    "pe_centre": (-10.0, 10.0, "metres from the FLAME origin"),
+}
 
 
 def _check_types_and_limits(config: AvatarConfig) -> None:
@@ -167,6 +179,12 @@ def _check_types_and_limits(config: AvatarConfig) -> None:
                 raise ValueError(f"{f.name} must be three finite numbers")
         elif not _is_real(value):
             raise ValueError(f"{f.name} must be a finite number, got {value!r:.40}")
+        if f.name in RANGES:
+            low, high, why = RANGES[f.name]
+            if not all(low <= v <= high for v in (value if isinstance(value, tuple) else (value,))):
+                raise ValueError(
+                    f"{f.name} must be in {low:.3g}..{high:.3g} ({why}), got {value!r:.60}"
+                )
 
 
 def _is_int(value) -> bool:

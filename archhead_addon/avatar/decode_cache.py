@@ -22,6 +22,7 @@ from ..io.errors import InputError
 from ..io.npz import read_npz
 from ..io.schema import check_finite
 from ..splat.frame import SplatFrame
+from .config import SIZE_LIMITS
 
 
 def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
@@ -125,4 +126,10 @@ def read_frame(path) -> SplatFrame:
     resolution = arrays.get("resolution")
     if resolution is None or resolution.shape != () or resolution.dtype.kind not in "iu":
         raise InputError(path, "resolution", "missing or not an integer")
+    if not 0 <= int(resolution) <= SIZE_LIMITS["s_max"]:  # 0: not decoded (SplatFrame)
+        raise InputError(
+            path,
+            "resolution",
+            f"{int(resolution)}: a UV resolution is in 0..{SIZE_LIMITS['s_max']}",
+        )
     return SplatFrame(**{k: arrays[k] for k in _WIDTHS}, resolution=int(resolution))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import math
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -53,7 +54,13 @@ def _member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, path) -> np.ndarray
         shape, fortran, dtype = _header(head)
     except InputError:
         raise
-    except _READ_ERRORS + (SyntaxError, TypeError, IndexError, UnicodeDecodeError) as exc:
+    except _READ_ERRORS + (
+        SyntaxError,
+        TypeError,
+        IndexError,
+        UnicodeDecodeError,
+        tokenize.TokenError,
+    ) as exc:  # a garbled header's Python literal fails in numpy's tokenizer (TokenError)
         raise InputError(
             path, key, f"unreadable npy header (corrupt file? {type(exc).__name__}: {exc})"
         ) from exc

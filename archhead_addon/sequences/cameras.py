@@ -10,11 +10,19 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import CV_TO_BLENDER_CAMERA as GL_TO_CV  # the same y/z flip, its own inverse
+from ..io.errors import InputError
 
 
-def w2c_from_opengl_c2w(c2w: np.ndarray) -> np.ndarray:
-    """(...,4,4) camera-to-world in OpenGL camera axes -> OpenCV world-to-camera."""
-    return np.linalg.inv(np.asarray(c2w, dtype=np.float64) @ GL_TO_CV)
+def w2c_from_opengl_c2w(c2w: np.ndarray, path=None, key=None) -> np.ndarray:
+    """(...,4,4) camera-to-world in OpenGL camera axes -> OpenCV world-to-camera; an
+    InputError naming `path` and `key` when a matrix has no inverse."""
+    c2w = np.asarray(c2w, dtype=np.float64) @ GL_TO_CV
+    try:
+        return np.linalg.inv(c2w)
+    except np.linalg.LinAlgError as exc:
+        raise InputError(
+            path, key, f"the camera-to-world matrix is singular (no camera pose): {exc}"
+        ) from exc
 
 
 def w2c_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -87,5 +87,5 @@ def _read_frame(arrays: dict, path: Path, number: int) -> dict:
         "neck": value("neck_pose", 3, default=np.zeros((1, 3))),
         "eyes": value("eye_pose", 6),
         "K": K.reshape(3, 3),
-        "w2c": w2c_from_opengl_c2w(camera_to_world(cam)),
+        "w2c": w2c_from_opengl_c2w(camera_to_world(cam), path, "cam"),
     }

@@ -99,6 +99,13 @@ class Sequence:
                 "K" if self.K is None else "w2c",
                 "intrinsics and extrinsics must be given together",
             )
+        if self.K is not None and self.image_size is None:
+            raise InputError(
+                self.source,
+                "image_size",
+                "missing: a sequence with cameras (K, w2c) needs the image size (H, W) "
+                "its intrinsics are in",
+            )
         for name, width in PER_FRAME.items():
             value = getattr(self, name)
             if value is None:

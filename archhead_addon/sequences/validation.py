@@ -22,6 +22,11 @@ PLAUSIBLE = {
     "K": (1e7, "pixels"),
     "w2c": (1e4, "metres"),
 }
+# Training refuses codes beyond this many times their plausible magnitude: a head deformed so
+# far is no face, and float32 overflows in the loss (Inf at the first step) long before 1e30
+TRAIN_FACTOR = 100.0
+TRAINED_CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation", "eyelids",
+                 "static_offset")  # fmt: skip
 MAX_IMAGE_SIDE = 1 << 16  # a larger image side is possible, but no video has one
 FPS_RANGE = (1.0, 1000.0)
 
@@ -58,6 +63,15 @@ def _check_camera(seq) -> None:
     if bad.any():
         t = int(np.argmax(bad))
         raise InputError(seq.source, "K", f"zero focal length at frame index {t}: singular")
+    bad = (focal < 0).any(axis=1)
+    if bad.any():  # a mirrored image: no camera (Blender's included) draws one
+        t = int(np.argmax(bad))
+        raise InputError(
+            seq.source,
+            "K",
+            f"negative focal length {focal[t].tolist()} at frame index {t}: "
+            "a mirrored camera (focal lengths are > 0 in pixels)",
+        )
     rot = seq.w2c[:, :3, :3]
     det = np.linalg.det(rot)
     bad = ~(np.abs(det) > 1e-9) | (np.abs(seq.w2c[:, 3] - [0, 0, 0, 1]) > 1e-6).any(axis=1)
@@ -73,3 +87,24 @@ def _check_camera(seq) -> None:
             f"rotation part is not orthonormal at frame index {t} "
             f"(error {error[t]:.2g}): scaled or sheared cameras render distorted",
         )
+
+
+def check_trainable(seq) -> None:
+    """What training cannot use although a reader accepts it (with a warning): codes beyond
+    TRAIN_FACTOR x their plausible magnitude, refused at set-up rather than as a non-finite
+    loss at step 1."""
+    for key in TRAINED_CODES:
+        value = getattr(seq, key)
+        if value is None or not value.size:
+            continue
+        plausible, reason = PLAUSIBLE[key]
+        largest = float(np.abs(value).max())
+        if largest > TRAIN_FACTOR * plausible:
+            where = np.unravel_index(int(np.argmax(np.abs(value))), value.shape)[0]
+            raise InputError(
+                seq.source,
+                key,
+                f"magnitude {largest:.3g} (at index {where}) is beyond what training can use, "
+                f"{TRAIN_FACTOR * plausible:g} ({TRAIN_FACTOR:g} x the plausible "
+                f"{plausible:g}: {reason})",
+            )

@@ -78,7 +78,7 @@ def _rows(arrays: dict, path: Path, frame=None, single=False) -> dict:
     n = len(expr)
     if single and n != 1:
         raise InputError(path, "expr", f"expected one timestep per file, found {n}")
-    rows = {"expr": expr}
+    rows = {"expr": expr, "path": path}
     for key, name, width in _POSES:
         rows[name] = get(arrays, key, path, (n, width), frame=frame, along="frame")
     shape = get(arrays, "shape", path, ("S",), (1, "S"), frame=frame)
@@ -89,6 +89,16 @@ def _rows(arrays: dict, path: Path, frame=None, single=False) -> dict:
 
 
 def _sequence(rows: list[dict], frame_ids, source, fps, **camera) -> Sequence:
+    for key in ("shape", "expr"):  # the poses' widths are fixed by `_rows`
+        width = rows[0][key].shape[1]
+        for r in rows[1:]:
+            if r[key].shape[1] != width:
+                raise InputError(
+                    r["path"],
+                    key,
+                    f"{r[key].shape[1]} coefficients, {rows[0]['path']} has {width}: "
+                    "every frame file must have the same widths",
+                )
     stacked = {
         name: np.concatenate([r[name] for r in rows])
         for name in ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
@@ -117,7 +127,7 @@ def _read_tracked_npz(path: Path, fps) -> Sequence:
         c2w[2, 3] = 1.0
         camera = {
             "K": np.repeat(intrinsics(f, f, w / 2, h / 2)[None], n, axis=0),
-            "w2c": np.repeat(w2c_from_opengl_c2w(c2w)[None], n, axis=0),
+            "w2c": np.repeat(w2c_from_opengl_c2w(c2w, path, "focal_length")[None], n, axis=0),
             "image_size": (h, w),
         }
     return _sequence([rows], np.arange(n), path, resolve_fps(fps, path), **camera)
@@ -140,10 +150,13 @@ def _load_frames(files: list[Path]) -> list[tuple[Path, int, dict, dict]]:
 def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
     frames = _load_frames(transforms_files(folder))
     for file, i, frame, _ in frames:
-        if not isinstance(frame.get("timestep_index"), int):
-            raise InputError(file, f"frames[{i}].timestep_index", "missing or not an integer")
-        if not isinstance(frame.get("camera_index", 0), int):
-            raise InputError(file, f"frames[{i}].camera_index", "not an integer")
+        for key, default in (("timestep_index", None), ("camera_index", 0)):
+            value = frame.get(key, default)
+            # a JSON true or false is an int to Python: true would stand for timestep 1
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise InputError(
+                    file, f"frames[{i}].{key}", f"expected a whole number >= 0, found {value!r:.40}"
+                )
     cameras = sorted({frame.get("camera_index", 0) for _, _, frame, _ in frames})
     chosen = cameras[0] if camera is None else camera
     if chosen not in cameras:
@@ -179,12 +192,19 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
             values[key] = json_number(
                 frame.get(key, top.get(key)), file, f"frames[{i}].{key}", minimum=-1e9
             )
+        for key in ("fl_x", "fl_y"):
+            if values[key] <= 0:
+                raise InputError(
+                    file,
+                    f"frames[{i}].{key}",
+                    f"focal length {values[key]:g} pixels: expected > 0 (a negative one mirrors)",
+                )
         sizes.add((int(values["h"]), int(values["w"])))
         Ks.append(intrinsics(values["fl_x"], values["fl_y"], values["cx"], values["cy"]))
         c2w = get(
             frame, "transform_matrix", file, (4, 4), frame=t, name=f"frames[{i}].transform_matrix"
         )
-        w2cs.append(w2c_from_opengl_c2w(c2w))
+        w2cs.append(w2c_from_opengl_c2w(c2w, file, f"frames[{i}].transform_matrix"))
     if len(sizes) > 1:
         raise InputError(frames[0][0], "w/h", f"frames differ in image size: {sorted(sizes)}")
     return _sequence(

@@ -58,6 +58,7 @@ from ..flame.model import FlameModel
 from ..io.errors import InputError, warn_input
 from ..sequences import Sequence, read_sequence
 from ..sequences.common import numbered_files
+from ..sequences.validation import check_trainable
 from .config import HOLDOUTS, MASKS
 from .images import IMAGE_SUFFIXES, image_size, read_image, read_mask, resize
 from .parts_mask import surface_regions
@@ -273,6 +274,7 @@ class FrameDataset:
             raise InputError(
                 path, "K", "the tracking has no camera (K and w2c); training needs one per frame"
             )
+        check_trainable(seq)  # codes read with a warning, that training would overflow on
         return seq
 
     def _scaled_intrinsics(self, source: tuple[int, int]) -> np.ndarray:

@@ -1,7 +1,10 @@
 """`train_state.pt` read back for a resume: through the bounded torch.save reader
 (io/torch_zip.py: no torch.load, no code, sizes and nesting bounded), then checked key by
 key, so a damaged or foreign file is an InputError naming the key instead of a KeyError or
-a NaN deep inside the optimizer."""
+a NaN deep inside the optimizer. The optimizer's groups and per-parameter state are checked
+against the saved model's tensors (and the refinement's), in the order `Trainer` builds its
+Adam groups: torch's `load_state_dict` checks only the group sizes, and a moment of the
+wrong shape would fail inside Adam's first step."""
 
 from __future__ import annotations
 
@@ -10,13 +13,18 @@ import math
 
 import numpy as np
 
-from ..avatar.config import AvatarConfig
+from ..avatar.config import AvatarConfig, parameter_shapes
 from ..io.errors import InputError
 from ..io.schema import check_finite
 from ..io.torch_zip import load_torch_file
+from ..sequences.validation import PLAUSIBLE, TRAIN_FACTOR
 from .config import TrainConfig
 
 STATE_FORMAT, STATE_VERSION = "archhead-train-state", 1
+# Trainer's Adam groups, in order, each of the model's tensors under that prefix (loop.py);
+# then one group "codes" per refined code, one parameter per frame (refine.py)
+MODEL_GROUPS = ("features", "mapping", "decoder")
+ADAM_STATE = ("step", "exp_avg", "exp_avg_sq")
 
 
 def read_train_state(path) -> dict:
@@ -38,20 +46,25 @@ def read_train_state(path) -> dict:
         raise InputError(path, "step", f"expected a whole number >= 0, found {step!r:.40}")
     if not isinstance(elapsed, int | float) or not (math.isfinite(elapsed) and elapsed >= 0):
         raise InputError(path, "elapsed", f"expected seconds >= 0, found {elapsed!r:.40}")
+    parsed = {}
     for key, parse in (("config", _train_config), ("avatar_config", AvatarConfig.from_json)):
         try:
-            parse(_text(state, key, path))
+            parsed[key] = parse(_text(state, key, path))
         except (ValueError, TypeError, RecursionError) as exc:
             raise InputError(path, key, f"invalid: {exc}") from exc
     if state.get("model_id") is not None:
         _text(state, "model_id", path)
-    _tensors(state.get("model"), path, "model")
+    _model(state.get("model"), path, parameter_shapes(parsed["avatar_config"]))
     offset = state.get("identity_offset")
     if offset is not None:
         _tensors({"": offset}, path, "identity_offset")
         if offset.ndim != 2 or offset.shape[1] != 3:
             raise InputError(path, "identity_offset", f"expected (V, 3), found {offset.shape}")
-    _optimizer(state.get("optimizer"), path)
+    if state.get("refinement") is not None:  # lr.codes > 0 (train/refine.py)
+        _tensors(state["refinement"], path, "refinement")
+    if getattr(parsed["config"].lr, "codes", 0) > 0 and not state.get("refinement"):
+        raise InputError(path, "refinement", "missing: the run's config refines the codes")
+    _optimizer(state.get("optimizer"), path, _parameters(state, path))
     return state
 
 
@@ -76,18 +89,112 @@ def _tensors(value, path, key: str) -> None:
         check_finite(array, path, where)
 
 
-def _optimizer(value, path) -> None:
+def _model(value, path, shapes: dict[str, tuple[int, ...]]) -> None:
+    _tensors(value, path, "model")
+    shape = value.get("identity_shape")
+    if shape is None:
+        raise InputError(path, "model.identity_shape", "missing (the subject's FLAME shape)")
+    if shape.ndim != 1 or not shape.size or shape.dtype.kind != "f":
+        raise InputError(
+            path,
+            "model.identity_shape",
+            f"expected (S,) floating-point coefficients, found {shape.dtype} {shape.shape}",
+        )
+    limit = TRAIN_FACTOR * PLAUSIBLE["shape"][0]  # as the tracking's (sequences/validation.py)
+    if np.abs(shape).max() > limit:
+        raise InputError(
+            path, "model.identity_shape", f"magnitude {np.abs(shape).max():.3g} is above {limit:g}"
+        )
+    for key, want in shapes.items():  # strict, as the avatar's load_state_dict
+        if key not in value:
+            raise InputError(path, f"model.{key}", f"missing (avatar_config needs {want})")
+        if value[key].shape != want:
+            raise InputError(
+                path, f"model.{key}", f"shape {value[key].shape}, avatar_config needs {want}"
+            )
+    extra = sorted(set(value) - set(shapes) - {"identity_shape"})
+    if extra:
+        raise InputError(path, f"model.{extra[0]}", "not a tensor of the avatar_config's model")
+
+
+def _parameters(state: dict, path) -> list[tuple[str, list[tuple[int, ...]]]]:
+    """(group name, the shapes of its parameters) of every Adam group a resumed Trainer
+    builds from this state, in order."""
+    groups = [
+        (g, [a.shape for k, a in state["model"].items() if k.startswith(g + ".")])
+        for g in MODEL_GROUPS
+    ]
+    for key, deltas in (state.get("refinement") or {}).items():
+        if deltas.ndim < 1 or not len(deltas):
+            raise InputError(
+                path, f"refinement.{key}", f"expected (frames, ...), found {deltas.shape}"
+            )
+        groups.append(("codes", [deltas.shape[1:]] * len(deltas)))
+    return groups
+
+
+def _optimizer(value, path, expected: list[tuple[str, list[tuple[int, ...]]]]) -> None:
     if not isinstance(value, dict):
         raise InputError(path, "optimizer", "missing or not a dict")
     per_param, groups = value.get("state"), value.get("param_groups")
     if not isinstance(per_param, dict) or not isinstance(groups, list) or not groups:
         raise InputError(path, "optimizer", "needs 'state' (a dict) and 'param_groups' (a list)")
-    for index, entry in per_param.items():
-        _tensors(entry, path, f"optimizer.state.{index}")
-    for i, group in enumerate(groups):
-        lr = group.get("lr") if isinstance(group, dict) else None
-        params = group.get("params") if isinstance(group, dict) else None
+    if len(groups) != len(expected):
+        raise InputError(
+            path,
+            "optimizer.param_groups",
+            f"{len(groups)} parameter groups, the saved model and refinement need "
+            f"{len(expected)} ({', '.join(name for name, _ in expected)})",
+        )
+    shapes: dict[int, tuple[int, ...]] = {}
+    for i, (group, (name, want)) in enumerate(zip(groups, expected, strict=True)):
+        where = f"optimizer.param_groups[{i}]"
+        if not isinstance(group, dict):
+            raise InputError(path, where, "not a dict")
+        lr, params = group.get("lr"), group.get("params")
         if not isinstance(lr, int | float) or not (math.isfinite(lr) and lr >= 0):
-            raise InputError(path, f"optimizer.param_groups[{i}].lr", "not a finite rate >= 0")
-        if not isinstance(params, list) or not all(isinstance(p, int) for p in params):
-            raise InputError(path, f"optimizer.param_groups[{i}].params", "not a list of ints")
+            raise InputError(path, f"{where}.lr", "not a finite rate >= 0")
+        if not isinstance(params, list) or not all(
+            isinstance(p, int) and not isinstance(p, bool) for p in params
+        ):
+            raise InputError(path, f"{where}.params", "not a list of ints")
+        if group.get("name") != name:
+            raise InputError(
+                path, f"{where}.name", f"expected '{name}', found {group.get('name')!r:.40}"
+            )
+        if len(params) != len(want):
+            raise InputError(
+                path,
+                f"{where}.params",
+                f"{len(params)} parameters, the saved '{name}' tensors are {len(want)}",
+            )
+        for index, shape in zip(params, want, strict=True):
+            if index in shapes:
+                raise InputError(path, f"{where}.params", f"parameter {index} listed twice")
+            shapes[index] = tuple(shape)
+    for index, entry in per_param.items():
+        where = f"optimizer.state.{index}"
+        if index not in shapes:
+            raise InputError(path, where, "state of a parameter no group lists")
+        _tensors(entry, path, where)
+        for name in ADAM_STATE:  # Adam reads all three once a parameter has a state
+            if name not in entry:
+                raise InputError(
+                    path,
+                    f"{where}.{name}",
+                    "missing (Adam's state has all of step, exp_avg, exp_avg_sq)",
+                )
+        step = entry["step"]
+        if step.shape != () or not (0 <= step < 1 << 40) or step != np.round(step):
+            raise InputError(
+                path, f"{where}.step", f"expected one whole number >= 0, found {step!r:.60}"
+            )
+        if (entry["exp_avg_sq"] < 0).any():
+            raise InputError(path, f"{where}.exp_avg_sq", "negative: a mean of squares is >= 0")
+        for name, moment in entry.items():
+            if name != "step" and moment.shape != shapes[index]:
+                raise InputError(
+                    path,
+                    f"{where}.{name}",
+                    f"shape {moment.shape}, its parameter's is {shapes[index]}",
+                )
