@@ -62,14 +62,21 @@ def remove_stale_stages(parent: Path) -> list[Path]:
     return removed
 
 
+def new_stage(parent: Path, name: str) -> Path:
+    """A fresh `name.partial-*` folder in `parent` owned by this process: a kill -9 leaves it
+    for `remove_stale_stages` (call that first) of the next run into `parent`."""
+    stage = Path(tempfile.mkdtemp(prefix=f"{name}.partial-", dir=parent))
+    (stage / OWNER_FILE).write_text(str(os.getpid()))
+    return stage
+
+
 @contextlib.contextmanager
 def staged_folder(out) -> Iterator[Path]:
     """A fresh temporary folder beside `out`, moved to `out` when the block succeeds."""
     out = Path(out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_stages(out.parent)
-    stage = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
-    (stage / OWNER_FILE).write_text(str(os.getpid()))
+    stage = new_stage(out.parent, out.name)
     try:
         for name in (FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR):
             (stage / name).mkdir()

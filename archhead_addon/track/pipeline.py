@@ -7,6 +7,7 @@ position is known) so memory holds landmarks and small masks, not the video.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from ..train.images import resize
 from .detect import MAX_HAND_COVER, FaceDetector
 from .embedding import landmark_embedding
 from .fit import ClipFit, FitOptions, crop_intrinsics, fit_landmarks, fitted_sequence
-from .folder import staged_folder, write_frame, write_mask, write_report
+from .folder import remove_stale_stages, staged_folder, write_frame, write_mask, write_report
 from .head_mask import head_and_neck_masks
 from .media import open_frames
 from .photometric import PhotometricOptions, refine_photometric
@@ -62,6 +63,8 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         raise InputError(
             None, "static_offset", "is fitted by the photometric refinement: keep it on"
         )
+    out = Path(out).absolute()
+    remove_stale_stages(out.parent)  # now, not only once a stage is made minutes later
     say = progress or (lambda **event: None)
     times = {}
     watch = Stopwatch()

