@@ -1,4 +1,5 @@
-"""Evaluate a trained avatar on its test frames (the last 10 % of DIR's frames):
+"""Evaluate a trained avatar on its test frames (those its run held out: the last 10 % of DIR's
+frames, or every tenth with `--holdout interleaved`, as RUN/config.json says):
 
     python -m archhead_addon.evaluate --avatar RUN/avatar.npz --data DIR --out EVAL
         [--lods 0,0.25,0.5,0.75,1 | --lods 0:1:0.05] [--precisions fp32,fp16]
@@ -15,8 +16,9 @@ EVAL/reenact/ (cross-identity reenactment). Every metric is given over the whole
 (the masks leave the background exact) and over the tracked head without its neck. The
 resolution defaults to the training run's (RUN/config.json); so do the masks. `--split
 train` scores the frames the avatar was fitted to (how well it fits, against how well it
-generalises); `--frames N` takes N frames evenly spread over the
-split. Exit status 2: bad input.
+generalises); `--frames N` takes N frames evenly spread over the split. A run that refined
+its tracking (`lr.codes`) is scored with RUN/tracking_refined.npz: its training frames with
+the codes they were trained with, its held-out frames as tracked. Exit status 2: bad input.
 """
 
 from __future__ import annotations
@@ -147,6 +149,16 @@ def run_mask(args) -> str:
     return args.mask or run_config(args).get("mask", "head")
 
 
+def run_tracking(args):
+    """The run's refined tracking (train/refine.py) when it wrote one, else None (the data
+    folder's): training frames are scored with the codes they were trained with."""
+    path = RunFolder(args.avatar.parent).tracking
+    if not path.is_file():
+        return None
+    print(f"evaluate: the run's refined tracking ({path.name}) gives the codes", file=sys.stderr)
+    return path
+
+
 def evaluate(args) -> int:
     import numpy as np
 
@@ -169,6 +181,7 @@ def evaluate(args) -> int:
         holdout=run_holdout(args),
         mask=run_mask(args),
         frames=args.frames,
+        tracking=run_tracking(args),
     )
     frames = [test[i] for i in range(len(test))]
     first = {}

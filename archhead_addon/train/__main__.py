@@ -150,7 +150,7 @@ def setup(args, progress: Progress) -> Trainer:
     frames = loop.frames_on_device(dataset, device)
     if state is not None:
         trainer = loop.Trainer.resume(
-            state, args.out, frames, model, dataset.background, device, config
+            state, args.out, frames, model, dataset.background, device, config, dataset.sequence
         )
         for problem in trainer.repair():
             progress.message(f"repaired: {problem}; rewritten from {state_path.name}")
@@ -164,6 +164,7 @@ def setup(args, progress: Progress) -> Trainer:
             dataset.background,
             device,
             identity_offset=dataset.sequence.static_offset,
+            sequence=dataset.sequence,
         )
     progress.event(
         START,

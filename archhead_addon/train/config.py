@@ -64,6 +64,8 @@ class LearningRates:
     features: float = 5e-3
     mapping: float = 1e-3
     decoder: float = 2e-3
+    # Per-frame refinement of the tracked codes (train/refine.py); 0 leaves the tracking as is.
+    codes: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ COUNTS = {
     "checkpoint_every": (1, 10_000_000),
 }
 LR_MAX, LR_PLAUSIBLE = 10.0, 0.1  # Adam's rates; the paper's are 1e-3 to 5e-3
+SWITCHED_RATES = ("codes",)  # rates whose 0 turns their part off (train/refine.py)
 WEIGHT_MAX, WEIGHT_PLAUSIBLE = 1e6, 1e3  # the paper's λs are 0.001 to 20
 
 
@@ -29,7 +30,8 @@ def check_ranges(config, where=None):
         if not (_real(value) and value == int(value) and low <= value <= high):
             raise InputError(where, key, f"must be a whole number in {low}..{high}, got {value!r}")
     for f in fields(config.lr):
-        _check(config.lr, f.name, "lr", 0.0, LR_MAX, LR_PLAUSIBLE, where, positive=True)
+        positive = f.name not in SWITCHED_RATES
+        _check(config.lr, f.name, "lr", 0.0, LR_MAX, LR_PLAUSIBLE, where, positive=positive)
     for f in fields(config.loss):
         _check(config.loss, f.name, "loss", 0.0, WEIGHT_MAX, WEIGHT_PLAUSIBLE, where)
     return config

@@ -45,6 +45,7 @@ from ..avatar.checkpoint import save_avatar
 from ..avatar.config import AvatarConfig
 from ..avatar.model import ArchHeadAvatar
 from ..io.atomic import atomic_path, write_bytes_atomic
+from ..sequences.canonical import write_canonical
 from ..splat import rasterization
 from ..splat.colour_space import display_background, linear_to_srgb_torch
 from ..splat.rendering import select_backend
@@ -53,6 +54,7 @@ from .config import TrainConfig
 from .losses import TrainingLoss
 from .perceptual import ShiftTolerantLPIPS
 from .progress import StepReport
+from .refine import CodeRefinement, refined_sequence
 from .run_folder import RunFolder
 from .state_file import STATE_FORMAT, STATE_VERSION, read_train_state
 
@@ -68,6 +70,7 @@ class Frame:
     codes: dict  # expr, jaw, neck, eyes, rotation, translation (1-D tensors)
     K: np.ndarray  # (3,3) at the training resolution
     w2c: np.ndarray  # (4,4)
+    index: int = -1  # the frame's position in the tracked sequence
 
 
 def frames_on_device(dataset, device: torch.device) -> list[Frame]:
@@ -86,6 +89,7 @@ def frames_on_device(dataset, device: torch.device) -> list[Frame]:
                 codes,
                 item["K"].astype(np.float64),
                 item["w2c"].astype(np.float64),
+                int(item["index"]),
             )
         )
     return frames
@@ -121,7 +125,10 @@ class Trainer:
         out_dir,
         background,
         device: torch.device,
+        sequence=None,
     ):
+        """`sequence`: the tracked sequence the frames come from; with `lr.codes` > 0 each
+        checkpoint writes it refined beside the avatar (RunFolder.tracking)."""
         if not frames:
             raise ValueError("no training frames")
         self.config, self.frames, self.avatar = config, frames, avatar
@@ -137,9 +144,14 @@ class Trainer:
             "mapping": list(avatar.mapping.parameters()),
             "decoder": list(avatar.decoder.parameters()),
         }
-        self.optimizer = torch.optim.Adam(
-            [{"params": p, "name": k, "lr": getattr(config.lr, k)} for k, p in groups.items()]
-        )
+        param_groups = [
+            {"params": p, "name": k, "lr": getattr(config.lr, k)} for k, p in groups.items()
+        ]
+        self.refinement, self.sequence = None, sequence
+        if config.lr.codes > 0:
+            self.refinement = CodeRefinement([f.codes for f in frames]).to(device)
+            param_groups += self.refinement.param_groups(config.lr.codes)
+        self.optimizer = torch.optim.Adam(param_groups)
         self.step = 0  # steps done
         self.elapsed = 0.0  # training seconds over every session of the run
         self.backend = select_backend("auto", device)
@@ -156,6 +168,7 @@ class Trainer:
         background,
         device,
         identity_offset=None,
+        sequence=None,
     ) -> Trainer:
         torch.manual_seed(config.seed)
         avatar = ArchHeadAvatar.create(
@@ -164,11 +177,11 @@ class Trainer:
             config.avatar_config(model.n_expr),
             identity_offset=identity_offset,
         )
-        return cls(config, frames, avatar.to(device), out_dir, background, device)
+        return cls(config, frames, avatar.to(device), out_dir, background, device, sequence)
 
     @classmethod
     def resume(
-        cls, state: dict, out_dir, frames, model, background, device, config=None
+        cls, state: dict, out_dir, frames, model, background, device, config=None, sequence=None
     ) -> Trainer:
         """The run as its last checkpoint (`load_state`) left it, with `config` (default: the
         state's). ValueError when `model` is not the FLAME model the run was started with."""
@@ -194,7 +207,9 @@ class Trainer:
                 f"fit the FLAME model '{model.model_id}' ({exc})"
             ) from exc
         config = config or state_config(state)
-        trainer = cls(config, frames, avatar.to(device), out_dir, background, device)
+        trainer = cls(config, frames, avatar.to(device), out_dir, background, device, sequence)
+        if trainer.refinement is not None and state.get("refinement"):
+            trainer.refinement.load(state["refinement"], RunFolder(out_dir).state)
         trainer.optimizer.load_state_dict(state["optimizer"])
         trainer.step, trainer.elapsed = int(state["step"]), float(state["elapsed"])
         return trainer
@@ -235,9 +250,10 @@ class Trainer:
 
     # -- one step -------------------------------------------------------------------------
 
-    def render(self, frame: Frame, lod: float):
-        """(rgb (H,W,3), Gaussians) of a frame at level `lod`."""
-        g = self.avatar(lod, **frame.codes)
+    def render(self, frame: Frame, lod: float, codes: dict | None = None):
+        """(rgb (H,W,3), Gaussians) of a frame at level `lod` (with `codes` instead of the
+        frame's own when given)."""
+        g = self.avatar(lod, **(frame.codes if codes is None else codes))
         h, w = frame.image.shape[:2]
         linear = self.avatar.config.colour_space == "linear"
         out = rasterization(
@@ -260,8 +276,11 @@ class Trainer:
         stage = cfg.stage(step)
         self.avatar.mapping.requires_grad_(stage == 1)
         for group in self.optimizer.param_groups:
-            group["lr"] = getattr(cfg.lr, group["name"]) * self.learning_rate_factor(step)
-        frame = self.frames[self.frame_index(step)]
+            rate = getattr(cfg.lr, group["name"]) * group.get("scale", 1.0)
+            group["lr"] = rate * self.learning_rate_factor(step)
+        index = self.frame_index(step)
+        frame = self.frames[index]
+        codes = None if self.refinement is None else self.refinement.apply(index, frame.codes)
         lods = self.lods(step)
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
@@ -271,7 +290,7 @@ class Trainer:
         if self.loss.perceptual is not None and any(lpips_weights):
             reference = self.loss.perceptual_reference(frame.image)
         for lod, lpips_weight in zip(lods, lpips_weights, strict=True):
-            rgb, g = self.render(frame, lod)
+            rgb, g = self.render(frame, lod, codes)
             total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight, reference)
             (total / len(lods)).backward()
             for k, v in terms.items():
@@ -319,10 +338,16 @@ class Trainer:
             "identity_offset": _tensor(self.avatar.identity_offset),
             "optimizer": _to_cpu(self.optimizer.state_dict()),
         }
+        if self.refinement is not None:
+            state["refinement"] = self.refinement.state()
         folder = RunFolder(self.out_dir)
         with atomic_path(folder.state) as tmp:
             torch.save(state, tmp)
         self.write_config()
+        if self.refinement is not None and self.sequence is not None:
+            indices = [f.index for f in self.frames]
+            refined = refined_sequence(self.sequence, indices, state["refinement"])
+            write_canonical(refined, folder.tracking)
         save_avatar(folder.avatar, self.avatar)
         folder.write_manifest(self.step, self.config.total_steps)
         return folder.avatar

@@ -28,6 +28,8 @@ class RunFolder:
         self.manifest = root / "checkpoint.json"  # the step and digests of the three above
         self.log = root / "train.log"  # the backend's output when another program ran it
         self.request = root / "train_request.json"  # a caller's config, given as --config
+        # the tracking with the training frames' codes refined (lr.codes > 0; train/refine.py)
+        self.tracking = root / "tracking_refined.npz"
 
     @property
     def checkpoint_files(self) -> tuple[Path, ...]:
