@@ -48,15 +48,19 @@ def active_avatar(context):
     return avatar_of(head) if head is not None else None
 
 
-def selected_avatars(context) -> list:
-    """The avatars of the selected objects' heads (each once), the active one's first."""
+def selected_heads(context) -> list:
+    """The heads of the active and selected objects (each once), the active one's first."""
     found = []
     for obj in [context.active_object, *getattr(context, "selected_objects", ())]:
         head = head_of(obj)
-        avatar = avatar_of(head) if head is not None else None
-        if avatar is not None and avatar not in found:
-            found.append(avatar)
+        if head is not None and head not in found:
+            found.append(head)
     return found
+
+
+def selected_avatars(context) -> list:
+    """The avatars of the selected heads, the active one's first."""
+    return [a for a in map(avatar_of, selected_heads(context)) if a is not None]
 
 
 def head_facts(head) -> HeadFacts:

@@ -138,13 +138,47 @@ class ArchHeadAvatarSettings(bpy.types.PropertyGroup):
     )
 
 
+def _tag_avatars(self, context):
+    """A scene setting that changes every avatar's level of detail: refresh them all."""
+    for obj in self.id_data.objects:
+        if is_avatar(obj):
+            obj.update_tag()
+
+
+class ArchHeadCrowdSettings(bpy.types.PropertyGroup):
+    """What a scene of many avatars sets once for all of them (`Scene.archhead_crowd`)."""
+
+    lod_bias: bpy.props.FloatProperty(
+        update=_tag_avatars,
+        name="LOD bias",
+        min=-1.0,
+        max=1.0,
+        default=0.0,
+        precision=3,
+        description="Added to the level of detail of every avatar driven by camera distance "
+        "(positive: less detail everywhere); animatable",
+    )
+    gaussian_budget: bpy.props.IntProperty(
+        update=_tag_avatars,
+        name="Gaussian budget",
+        min=0,
+        default=0,
+        description="The most Gaussians the scene's avatars may show at once: above it, every "
+        "avatar's level of detail is raised by one common amount until they fit (0: no limit)",
+    )
+
+
 def register():
     bpy.utils.register_class(ArchHeadAvatarSettings)
+    bpy.utils.register_class(ArchHeadCrowdSettings)
     bpy.types.Object.archhead_avatar = bpy.props.PointerProperty(type=ArchHeadAvatarSettings)
+    bpy.types.Scene.archhead_crowd = bpy.props.PointerProperty(type=ArchHeadCrowdSettings)
 
 
 def unregister():
+    del bpy.types.Scene.archhead_crowd
     del bpy.types.Object.archhead_avatar
+    bpy.utils.unregister_class(ArchHeadCrowdSettings)
     bpy.utils.unregister_class(ArchHeadAvatarSettings)
 
 

@@ -88,6 +88,10 @@ class SharedDecoder:
         self.disk = _disk_cache(settings)
         self.budgets: dict[int, int] = {}  # user's session_uid -> its memory budget, bytes
 
+    def texels_at_max(self) -> int:
+        """The avatar's texels at LOD 0: its Gaussians before opacity and culling."""
+        return len(self.runtime.raster.table(self.runtime.config.s_max).texel)
+
     def use(self, uid: int, memory_mb: int) -> None:
         """Count an avatar among the users: the memory cache holds the sum of their budgets
         (each head's frames are its own; a shared budget would evict a crowd's every frame)."""

@@ -24,6 +24,7 @@ from archhead_addon.threads import thread_count
 
 from .avatar_props import is_avatar
 from .avatar_session import session
+from .crowd import scene_lods
 from .decoding import decode_frames
 from .handlers import frame_to_show
 from .scene_state import blender_camera
@@ -94,9 +95,11 @@ def _render_exact(context, frame: int, out_dir: Path, avatars) -> Path:
     space = "linear" if "linear" in spaces else "display"
     if len(spaces) > 1:  # one image blends in one space: the older avatars' look changes
         print(f"ArchHead: avatars of both colour spaces in one exact render; blending {space}")
+    lods = scene_lods(scene, depsgraph) or {}
     for obj in avatars:  # every avatar in Blender's world space, then one image of them all
         culled = obj.archhead_avatar.cull != "OFF"  # an exact render is a render
-        _, splat = frame_to_show(obj, scene, depsgraph, culled=culled)
+        lod = lods.get(obj.session_uid)
+        _, splat = frame_to_show(obj, scene, depsgraph, culled=culled, lod=lod)
         parts.append(transform_frame(np.array(obj.evaluated_get(depsgraph).matrix_world), splat))
     camera = blender_camera(scene)
     raster = render_from_blender_camera(

@@ -11,7 +11,8 @@ from __future__ import annotations
 from archhead_addon.avatar.frame_selection import frames_to_decode
 
 from .avatar_session import Decoded, session
-from .handlers import refresh_avatar, resume, suspend
+from .crowd import scene_lods
+from .handlers import refresh_scene, resume, suspend
 from .scene_state import avatar_lod, frame_codes, head_rig, keyed_frames
 
 
@@ -33,9 +34,10 @@ def decode_frame(context, objs, frame: int) -> None:
     avatars = [(obj, session(obj)) for obj in objs]
     context.scene.frame_set(frame)
     depsgraph = context.evaluated_depsgraph_get()
+    budgeted = scene_lods(context.scene, depsgraph) or {}  # the whole scene's, when it has one
     for obj, avatar in avatars:
         codes = frame_codes(obj.archhead_avatar.head, depsgraph, avatar.joint_dirs)
-        lod = avatar.lod_override
+        lod = budgeted.get(obj.session_uid, avatar.lod_override)
         if lod is None:
             lod = avatar_lod(obj, depsgraph)
         key, _ = avatar.frame(codes, lod)
@@ -68,7 +70,5 @@ def decode_frames(context, objs, frames=None) -> int:
     finally:
         scene.frame_set(start)
         resume()
-    depsgraph = context.evaluated_depsgraph_get()
-    for obj in objs:
-        refresh_avatar(obj, scene, depsgraph)
+    refresh_scene(scene, context.evaluated_depsgraph_get())
     return len(plan)

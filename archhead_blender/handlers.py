@@ -24,6 +24,7 @@ from archhead_addon.splat.frame import SplatFrame
 
 from .avatar_props import is_avatar
 from .avatar_session import forget_shown, prune_sessions, session
+from .crowd import scene_budget, scene_lods
 from .lod_driver import follow_scene_camera
 from .point_instances import write_points
 from .scene_state import avatar_lod, camera_frustum, camera_in_object, frame_codes
@@ -40,13 +41,20 @@ def resume() -> None:
 
 
 def frame_to_show(
-    obj, scene, depsgraph, culled: bool = False, full_colour: bool = False, avatar=None
+    obj,
+    scene,
+    depsgraph,
+    culled: bool = False,
+    full_colour: bool = False,
+    avatar=None,
+    lod: float | None = None,
 ) -> tuple[str, SplatFrame]:
     """(cache key, Gaussians) the avatar shows at the scene's frame: the codes and level of
     detail there, or with "Hold" between decoded frames, the last decoded frame's; `culled`
     leaves out what the scene camera cannot see (archhead_addon.avatar.culling),
     `full_colour` decodes every SH band even where the display shows the DC term (export);
-    `avatar`: the object's session when the caller has it."""
+    `avatar`: the object's session when the caller has it; `lod`: the level the scene's
+    Gaussian budget gives it (crowd.scene_lods), else its own."""
     avatar = avatar or session(obj)
     settings = obj.archhead_avatar
     view = camera_frustum(obj, scene, depsgraph) if culled else None
@@ -58,7 +66,10 @@ def frame_to_show(
             record = avatar.decoded[held]
             return avatar.frame(record.codes, record.lod, view, degree)
     codes = frame_codes(settings.head, depsgraph, avatar.joint_dirs)
-    lod = avatar.lod_override if avatar.lod_override is not None else avatar_lod(obj, depsgraph)
+    if lod is None:
+        lod = avatar.lod_override
+    if lod is None:
+        lod = avatar_lod(obj, depsgraph)
     return avatar.frame(codes, lod, view, degree)
 
 
@@ -68,10 +79,12 @@ def culls(obj, depsgraph) -> bool:
     return mode == "ALWAYS" or (mode == "RENDER" and depsgraph.mode == "RENDER")
 
 
-def refresh_avatar(obj, scene, depsgraph) -> bool:
-    """Bring one avatar's points up to date; True if they were rewritten."""
+def refresh_avatar(obj, scene, depsgraph, lod: float | None = None) -> bool:
+    """Bring one avatar's points up to date (at `lod` when the scene's budget sets it); True
+    if they were rewritten."""
     avatar = session(obj)
-    key, splat = frame_to_show(obj, scene, depsgraph, culls(obj, depsgraph), avatar=avatar)
+    culled = culls(obj, depsgraph)
+    key, splat = frame_to_show(obj, scene, depsgraph, culled, avatar=avatar, lod=lod)
     view_from = None
     if avatar.sh_degree > 0:  # view-dependent colour on an avatar that has it
         view_from = camera_in_object(obj, scene, depsgraph)
@@ -87,12 +100,19 @@ def refresh_scene(scene, depsgraph) -> None:
     prune_sessions()  # an avatar deleted or purged since the last update frees its memory
     if STATE.suspended:
         return
+    lods = None
+    if scene_budget(scene):
+        try:
+            lods = scene_lods(scene, depsgraph)
+        except (InputError, OSError, ValueError, KeyError) as exc:
+            print(f"ArchHead: the scene's Gaussian budget is not applied: {exc}")
     for obj in scene.objects:
         if not is_avatar(obj):
             continue
         try:
             follow_scene_camera(obj, scene)  # takes effect at the next evaluation
-            refresh_avatar(obj, scene, depsgraph)
+            lod = None if lods is None else lods.get(obj.session_uid)
+            refresh_avatar(obj, scene, depsgraph, lod)
             STATE.errors.pop(obj.session_uid, None)
         except (InputError, OSError, ValueError, KeyError) as exc:
             if STATE.errors.get(obj.session_uid) != str(exc):  # say it once, not every update

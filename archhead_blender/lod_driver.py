@@ -3,24 +3,35 @@
 The driver is a simple expression (Blender evaluates it without Python, so it runs in files
 whose scripts are not trusted and in background renders): a LOC_DIFF distance `d` between
 the camera and the head's root bone, and `near` / `far` read from custom properties of the
-avatar object, so they can be changed (or animated) without editing the expression. The
-distance's camera target follows the scene's active camera (`follow_scene_camera`, run by the
-handlers): a camera made active by hand or by a camera marker drives the level of detail.
+avatar object, so they can be changed (or animated) without editing the expression, plus
+the scene's LOD bias (`Scene.archhead_crowd.lod_bias`), one slider for every driven avatar.
+By screen size, the distance is divided by the camera's focal length over 50 mm: a head
+zoomed in on gets the detail it would have that much closer. The camera targets follow the
+scene's active camera (`follow_scene_camera`, run by the handlers): a camera made active by
+hand or by a camera marker drives the level of detail.
 """
 
 from __future__ import annotations
 
+import bpy
+
 from .scene_state import head_rig
 
-DRIVER_EXPRESSION = "min(max((d - near) / (far - near), 0), 1)"
+DRIVER_EXPRESSION = "min(max((d - near) / (far - near) + bias, 0), 1)"
+SCREEN_EXPRESSION = "min(max((d * 50 / lens - near) / (far - near) + bias, 0), 1)"
 NEAR_PROP, FAR_PROP = "archhead_lod_near", "archhead_lod_far"
 LOD_PATH = "archhead_avatar.lod"
+BIAS_PATH = "archhead_crowd.lod_bias"  # on the scene (crowd.py)
+MODES = ("DISTANCE", "SCREEN")
 
 
-def drive_lod_by_distance(obj, camera, near: float, far: float):
-    """Replace any animation of the avatar's level of detail with the distance driver."""
+def drive_lod_by_distance(obj, camera, near: float, far: float, mode: str = "DISTANCE"):
+    """Replace any animation of the avatar's level of detail with the distance driver
+    (`mode` "SCREEN": the distance as seen through the camera's lens, module docstring)."""
     if not far > near:
         raise ValueError(f"far ({far}) must be greater than near ({near})")
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     obj[NEAR_PROP], obj[FAR_PROP] = float(near), float(far)
     for prop in (NEAR_PROP, FAR_PROP):
         obj.id_properties_ui(prop).update(
@@ -45,7 +56,18 @@ def drive_lod_by_distance(obj, camera, near: float, far: float):
         var.targets[0].id_type = "OBJECT"
         var.targets[0].id = obj
         var.targets[0].data_path = f'["{prop}"]'
-    driver.expression = DRIVER_EXPRESSION
+    bias = driver.variables.new()
+    bias.name, bias.type = "bias", "SINGLE_PROP"
+    bias.targets[0].id_type = "SCENE"
+    bias.targets[0].id = obj.users_scene[0] if obj.users_scene else bpy.context.scene
+    bias.targets[0].data_path = BIAS_PATH
+    if mode == "SCREEN":
+        lens = driver.variables.new()
+        lens.name, lens.type = "lens", "SINGLE_PROP"
+        lens.targets[0].id_type = "CAMERA"
+        lens.targets[0].id = camera.data
+        lens.targets[0].data_path = "lens"
+    driver.expression = SCREEN_EXPRESSION if mode == "SCREEN" else DRIVER_EXPRESSION
     driver.use_self = False
     return driver
 
@@ -57,8 +79,13 @@ def follow_scene_camera(obj, scene) -> bool:
     camera = scene.camera
     if curve is None or camera is None:
         return False
-    distance = curve.driver.variables.get("d")
-    if distance is None or distance.type != "LOC_DIFF" or distance.targets[0].id == camera:
-        return False
-    distance.targets[0].id = camera
-    return True
+    variables = curve.driver.variables
+    distance, lens = variables.get("d"), variables.get("lens")
+    moved = False
+    if distance is not None and distance.type == "LOC_DIFF" and distance.targets[0].id != camera:
+        distance.targets[0].id = camera
+        moved = True
+    if lens is not None and camera.type == "CAMERA" and lens.targets[0].id != camera.data:
+        lens.targets[0].id = camera.data
+        moved = True
+    return moved

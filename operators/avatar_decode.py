@@ -16,12 +16,12 @@ from archhead_addon.io.errors import InputError
 from archhead_blender.avatar_objects import active_avatar, selected_avatars
 from archhead_blender.avatar_session import session
 from archhead_blender.decoding import decode_frame, decode_frames, scene_plan
-from archhead_blender.handlers import refresh_avatar, resume, suspend
+from archhead_blender.handlers import refresh_scene, resume, suspend
 from archhead_blender.state import STATE
 
 
 class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
-    """Decode the frames (keyed, every or every n-th) of the selected avatars into the cache, one pass over the scene for all of them; Esc cancels"""
+    """Decode the selected avatars' frames (keyed, all or every n-th) into the cache; Esc cancels"""
 
     bl_idname = "archhead.decode_avatar"
     bl_label = "Decode Frames"
@@ -105,9 +105,7 @@ class ARCHHEAD_OT_decode_avatar(bpy.types.Operator):
         resume()
         kept = False
         if alive:
-            depsgraph = context.evaluated_depsgraph_get()
-            for obj in self.objs:
-                refresh_avatar(obj, context.scene, depsgraph)
+            refresh_scene(context.scene, context.evaluated_depsgraph_get())
             kept = any(session(obj).decoded for obj in self.objs)
         _redraw_sidebars(context)
         if message:

@@ -1,15 +1,16 @@
-"""Drive LOD by Camera Distance (archhead_blender.lod_driver installs the driver)."""
+"""Drive LOD by Camera Distance, for every selected avatar (archhead_blender.lod_driver
+installs the driver)."""
 
 from __future__ import annotations
 
 import bpy
 
-from archhead_blender.avatar_objects import active_avatar
+from archhead_blender.avatar_objects import active_avatar, selected_avatars
 from archhead_blender.lod_driver import drive_lod_by_distance
 
 
 class ARCHHEAD_OT_drive_lod(bpy.types.Operator):
-    """Drive the avatar's level of detail by the scene camera's distance to the head"""
+    """Drive the selected avatars' level of detail by the scene camera's distance to each head"""
 
     bl_idname = "archhead.drive_lod"
     bl_label = "Drive LOD by Camera Distance"
@@ -30,16 +31,34 @@ class ARCHHEAD_OT_drive_lod(bpy.types.Operator):
         description="At or beyond this: LOD 1 (least detail)",
     )
 
+    mode: bpy.props.EnumProperty(
+        name="By",
+        default="DISTANCE",
+        items=(
+            ("DISTANCE", "Distance", "The camera's distance to the head"),
+            (
+                "SCREEN",
+                "Screen size",
+                "The distance seen through the camera's lens (divided by its focal length "
+                "over 50 mm): a head zoomed in on keeps its detail",
+            ),
+        ),
+    )
+
     @classmethod
     def poll(cls, context):
         return context.scene.camera is not None and active_avatar(context) is not None
 
     def execute(self, context):
+        avatars = selected_avatars(context)
         try:
-            drive_lod_by_distance(active_avatar(context), context.scene.camera, self.near, self.far)
+            for obj in avatars:
+                drive_lod_by_distance(obj, context.scene.camera, self.near, self.far, self.mode)
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        if len(avatars) > 1:
+            self.report({"INFO"}, f"{len(avatars)} avatars driven by the camera")
         return {"FINISHED"}
 
     def invoke(self, context, event):

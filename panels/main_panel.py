@@ -88,6 +88,11 @@ def _draw_avatar(layout, context, head):
         col.prop(settings, "cache_dir", text="")
     box.operator("archhead.export_ply", icon="EXPORT")
     box.operator("archhead.load_avatar", text="Replace Checkpoint", icon="FILE_REFRESH")
+    crowd = layout.box()  # the scene's, for every avatar in it
+    crowd.label(text="All avatars", icon="COMMUNITY")
+    col = crowd.column(align=True)
+    col.prop(context.scene.archhead_crowd, "lod_bias", slider=True)
+    col.prop(context.scene.archhead_crowd, "gaussian_budget")
 
 
 def _draw_video_avatar(layout, run):

@@ -134,3 +134,70 @@ def test_a_linked_duplicate_gets_points_of_its_own(tmp_path, demo_scene, tiny_ch
     assert copy[2].data.users == 1 and original[2].data.users == 1
     # each shows its own level of detail, not whichever wrote last
     assert len(copy[2].data.vertices) < len(original[2].data.vertices)
+
+
+def test_the_budget_raises_every_level_by_the_least_common_amount():
+    crowd = _module("crowd")
+    sizes = [(60_000, 256, 64)] * 3
+    wanted = [0.0, 0.3, 0.9]
+    assert crowd.budget_bias(wanted, sizes, 0) == 0.0  # no budget
+    assert crowd.budget_bias(wanted, sizes, 10**9) == 0.0  # fits as it is
+    assert crowd.budget_bias(wanted, sizes, 100) == 1.0  # not even LOD 1 everywhere fits
+
+    def total(b):
+        return sum(crowd.gaussians_at(min(w + b, 1), *s) for w, s in zip(wanted, sizes))
+
+    budget = 50_000
+    b = crowd.budget_bias(wanted, sizes, budget)
+    assert 0 < b < 1 and total(b) <= budget < total(b - 1e-3)
+
+
+def test_crowd_operators_load_drive_and_budget_every_selected_head(
+    tmp_path, demo_scene, tiny_checkpoint
+):
+    head, _ = demo_scene(tmp_path)
+    bpy.context.view_layer.objects.active = head
+    second = _duplicate([head, head.parent], linked=False)  # a second head, no avatar yet
+    second[1].location.x += 0.4
+    for obj in (head, second[0]):
+        obj.select_set(True)
+    bpy.context.view_layer.objects.active = head
+    assert bpy.ops.archhead.load_avatar(filepath=str(tiny_checkpoint)) == {"FINISHED"}
+    avatar_of = _module("avatar_objects").avatar_of
+    avatars = [avatar_of(head), avatar_of(second[0])]
+    assert all(a is not None for a in avatars)
+    for obj in avatars:
+        obj.select_set(True)
+
+    scene = bpy.context.scene
+    assert bpy.ops.archhead.drive_lod(near=0.1, far=20.0) == {"FINISHED"}
+    scene.frame_set(1)
+
+    def levels():
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        return [a.evaluated_get(depsgraph).archhead_avatar.lod for a in avatars]
+
+    base = levels()
+    assert all(0 < v < 1 for v in base)
+    scene.archhead_crowd.lod_bias = 0.2  # one slider for every driven avatar
+    assert levels() == pytest.approx([v + 0.2 for v in base], abs=1e-5)
+    scene.archhead_crowd.lod_bias = 0.0
+
+    # screen size: zooming in (a longer lens) gives the detail of a nearer camera
+    assert bpy.ops.archhead.drive_lod(near=0.1, far=20.0, mode="SCREEN") == {"FINISHED"}
+    lens = scene.camera.data.lens
+    before = levels()
+    scene.camera.data.lens = 2 * lens
+    assert all(z < b for z, b in zip(levels(), before))
+    scene.camera.data.lens = lens
+
+    # the scene's Gaussian budget: the avatars show no more than it, together
+    scene.archhead_crowd.lod_bias = 0.0
+    scene.frame_set(2)
+    free = sum(len(a.data.vertices) for a in avatars)
+    scene.archhead_crowd.gaussian_budget = free // 2
+    scene.frame_set(3)
+    shown = sum(len(a.data.vertices) for a in avatars)
+    assert shown <= free // 2
+    assert shown > free // 8  # raised no further than needed
+    scene.archhead_crowd.gaussian_budget = 0
