@@ -20,7 +20,7 @@ from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.avatar.culling import REACH_PAD, SIGMAS, ViewFrustum
 from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.lod import resolution_for_lod
-from archhead_addon.avatar.runtime import AvatarRuntime
+from archhead_addon.avatar.runtime import LEVEL_BYTES, AvatarRuntime
 from archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
 from archhead_addon.flame.model import FlameModel, load_model
 from archhead_addon.io.digest import file_digest
@@ -30,6 +30,9 @@ from .preferences import get_preferences
 from .state import STATE, drop_user, forget_object, object_uids
 
 PRECISION = "fp32"
+# Per-resolution tables of a shared runtime: a table per head's resolution (a full-size
+# avatar's average over the levels is about 20 MB), up to a cap.
+LEVEL_BYTES_PER_HEAD, LEVEL_BYTES_MAX = 24 << 20, 2 << 30
 
 
 @dataclass
@@ -94,14 +97,23 @@ class SharedDecoder:
 
     def use(self, uid: int, memory_mb: int) -> None:
         """Count an avatar among the users: the memory cache holds the sum of their budgets
-        (each head's frames are its own; a shared budget would evict a crowd's every frame)."""
+        (each head's frames are its own; a shared budget would evict a crowd's every frame),
+        and the per-resolution tables grow with the heads, each at its own resolution (a
+        table rebuilt costs about a decode)."""
         self.budgets[uid] = memory_mb << 20
+        self._resize()
+
+    def _resize(self) -> None:
         self.memory.max_bytes = sum(self.budgets.values())
+        users = len(self.budgets)
+        self.runtime.level.max_bytes = min(
+            max(LEVEL_BYTES, users * LEVEL_BYTES_PER_HEAD), LEVEL_BYTES_MAX
+        )
 
     def release(self, uid: int) -> bool:
         """Forget a user; True when none is left (the decoder can go)."""
         self.budgets.pop(uid, None)
-        self.memory.max_bytes = sum(self.budgets.values())
+        self._resize()
         return not self.budgets
 
     def key(self, codes: FrameCodes, lod: float, view=None, sh_degree=None) -> str:

@@ -103,7 +103,7 @@ def main(argv) -> None:
         write = _ms(lambda i, a=attrs: api.write_points(obj, a), args.repeats)
 
         def first_visit(i, lod=lod):
-            runtime.level.cache_clear()
+            runtime.level.clear()
             set_lod(near(lod))
 
         build = _ms(first_visit, max(args.repeats // 2, 2))

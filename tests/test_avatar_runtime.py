@@ -99,17 +99,18 @@ def test_runtime_never_imports_torch(saved):
 
 def test_per_resolution_work_is_cached(saved):
     _, path, head = saved
-    runtime = AvatarRuntime.load(path, flame=head, max_cached=2)
+    runtime = AvatarRuntime.load(path, flame=head)
     runtime.decode(0.8)
     runtime.decode(0.801)  # the same S = 102
-    info = runtime.level.cache_info()
-    assert (info.hits, info.misses) == (1, 1)
+    assert (runtime.level.hits, runtime.level.misses) == (1, 1)
     level = runtime.level(102, "fp32")
     n, width = len(level["texel"]), runtime.config.fused_width
     assert level["first"].shape == (width, n) and level["first"].dtype == np.float32
-    for lod in (0.9, 1.0, 0.8):  # evicts the oldest beyond two resolutions
+    two = runtime.level.nbytes + 1  # room for this level and a smaller one, not three
+    runtime.level.max_bytes = 2 * two
+    for lod in (0.9, 1.0, 0.8):  # evicts the least recently used past the budget
         runtime.decode(lod)
-    assert runtime.level.cache_info().currsize == 2
+    assert len(runtime.level) == 2 and runtime.level.nbytes <= 2 * two
 
 
 def test_fp16_path_stays_close_and_halves_the_cache(saved):

@@ -1,7 +1,8 @@
 """The avatar in numpy alone (for Blender): reads a checkpoint and decodes frames into Gaussians,
 reproducing `model.ArchHeadAvatar` (see its docstring for the network). Never imports torch.
 
-Per resolution S (`level(S, precision)`, least recently used out first): the UV table, the
+Per resolution S (`level(S, precision)`, least recently used out first once their bytes pass
+`level_bytes`: a crowd of heads shares one runtime, each at its own S): the UV table, the
 texels' face corners and base log scale, and the feature field resampled to S, blended, and
 pushed through the feature columns of the fused first layer, `W1_feature @ feature`
 (fused width, N). A frame then costs FLAME, the position map, the PE and the MLPs; the driving
@@ -46,13 +47,52 @@ CHUNK = 8192  # most texels per pass through the decoder (its widest activations
 # Culling pays when it leaves out more than this share's complement: below, the gathers of
 # the kept texels cost about what decoding the others would.
 CULL_WORTH = 0.9
+LEVEL_BYTES = 256 << 20  # the per-S tables kept: a full-size avatar's S = 256 takes 49 MB
+
+
+class LevelCache:
+    """`build(size, precision)`'s tables, least recently used out once their bytes pass
+    `max_bytes` (the newest always stays); `hits`, `misses` and `len()` for tests."""
+
+    def __init__(self, build, max_bytes: int):
+        self.build, self.max_bytes = build, int(max_bytes)
+        self._levels: dict[tuple, tuple[dict, int]] = {}  # insertion order: least recent first
+        self.nbytes = self.hits = self.misses = 0
+
+    def __call__(self, size: int, precision: str) -> dict:
+        key = (int(size), precision)
+        found = self._levels.pop(key, None)
+        if found is not None:
+            self.hits += 1
+        else:
+            self.misses += 1
+            level = self.build(*key)
+            found = (level, sum(getattr(v, "nbytes", 0) for v in level.values()))
+            self.nbytes += found[1]
+        self._levels[key] = found
+        while self.nbytes > self.max_bytes and len(self._levels) > 1:
+            self.nbytes -= self._levels.pop(next(iter(self._levels)))[1]
+        return found[0]
+
+    def __len__(self) -> int:
+        return len(self._levels)
+
+    def clear(self) -> None:
+        self._levels.clear()
+        self.nbytes = 0
 
 
 class AvatarRuntime:
     def __init__(
-        self, ckpt: AvatarCheckpoint, flame=None, path=None, max_cached: int = 4, threads: int = 0
+        self,
+        ckpt: AvatarCheckpoint,
+        flame=None,
+        path=None,
+        level_bytes: int = LEVEL_BYTES,
+        threads: int = 0,
     ):
-        """`threads`: how many threads decode chunks of texels at once (0: every core)."""
+        """`threads`: how many threads decode chunks of texels at once (0: every core);
+        `level_bytes`: how much the per-S tables may hold (`LevelCache`)."""
         self.config = cfg = ckpt.config
         self.threads = thread_count(threads)
         self.mesh = checkpoint_mesh(ckpt, flame, path)
@@ -64,17 +104,19 @@ class AvatarRuntime:
         self.features = {s: ckpt.params[f"features.{s}"] for s in cfg.levels}
         self._nets = {p: _Network(ckpt.params, cfg, half=p == "fp16") for p in PRECISIONS}
         # Through a weak reference: a cached bound method is a cycle (self -> cache -> self)
-        # that only the cyclic collector frees, and a dropped runtime kept hundreds of MB
-        # until it ran (Blender's deleted avatars).
+        # that only the cyclic collector frees, and a dropped runtime would keep hundreds of
+        # MB until it ran (Blender's deleted avatars).
         this = weakref.ref(self)
-        self.level = functools.lru_cache(maxsize=max_cached)(
-            lambda size, precision: this()._build_level(size, precision)
+        self.level = LevelCache(
+            lambda size, precision: this()._build_level(size, precision), level_bytes
         )
 
     @classmethod
-    def load(cls, path, flame=None, max_cached: int = 4, threads: int = 0) -> AvatarRuntime:
+    def load(
+        cls, path, flame=None, level_bytes: int = LEVEL_BYTES, threads: int = 0
+    ) -> AvatarRuntime:
         """`flame`: the FLAME model the avatar was trained on (FlameModel, file, None=built-in)."""
-        return cls(read_checkpoint(path), flame, path, max_cached, threads)
+        return cls(read_checkpoint(path), flame, path, level_bytes, threads)
 
     def resolution(self, lod: float) -> int:
         return resolution_for_lod(lod, self.config.s_max, self.config.s_min)[1]
