@@ -30,9 +30,9 @@ from .preferences import get_preferences
 from .state import STATE, drop_user, forget_object, object_uids
 
 PRECISION = "fp32"
-# Per-resolution tables of a shared runtime: a table per head's resolution (a full-size
-# avatar's average over the levels is about 20 MB), up to a cap.
-LEVEL_BYTES_PER_HEAD, LEVEL_BYTES_MAX = 24 << 20, 2 << 30
+# Per-resolution tables of a shared runtime: room for one per head, each at its own resolution
+# (a full-size avatar's S = 256 takes 49 MB), up to every resolution's (2.5 GB full size).
+LEVEL_BYTES_PER_HEAD, LEVEL_BYTES_MAX = 48 << 20, 3 << 30
 
 
 @dataclass
@@ -171,6 +171,7 @@ class AvatarSession:
     point mesh shows and a batch render's fixed level of detail."""
 
     def __init__(self, obj):
+        self.name, self.uid = obj.name, obj.session_uid
         self.source = _source(obj)
         self.decoder_key = decoder_key(obj)
         self.shared = shared_decoder(self.decoder_key, obj)
@@ -283,6 +284,10 @@ def session(obj) -> AvatarSession:
     if current is not None:  # its settings changed: it leaves its old decoder
         drop_user(current.decoder_key, uid)
         del STATE.sessions[uid]
+    returned = _returning(obj, source)
+    if returned is not None:
+        STATE.sessions[uid] = returned
+        return returned
     try:
         current = STATE.sessions[uid] = AvatarSession(obj)
     except (OSError, ValueError, KeyError) as exc:  # InputError is a ValueError
@@ -290,6 +295,20 @@ def session(obj) -> AvatarSession:
         raise
     STATE.failures.pop(uid, None)
     return current
+
+
+def _returning(obj, source: tuple) -> AvatarSession | None:
+    """The retired session of an avatar object that came back (a redo of Load Avatar, an
+    undone delete: a new object of the old one's name and settings), taken over by it."""
+    retired = STATE.retired.get(obj.name)
+    if retired is None or retired.source != source:
+        return None
+    del STATE.retired[obj.name]
+    retired.shared.use(obj.session_uid, obj.archhead_avatar.memory_mb)
+    if retired.uid != obj.session_uid:
+        retired.shared.release(retired.uid)
+    retired.uid, retired.shown = obj.session_uid, None
+    return retired
 
 
 def drop_session(obj) -> None:

@@ -5,10 +5,12 @@ whose scripts are not trusted and in background renders): a LOC_DIFF distance `d
 the camera and the head's root bone, and `near` / `far` read from custom properties of the
 avatar object, so they can be changed (or animated) without editing the expression, plus
 the scene's LOD bias (`Scene.archhead_crowd.lod_bias`), one slider for every driven avatar.
-By screen size, the distance is divided by the camera's focal length over 50 mm: a head
-zoomed in on gets the detail it would have that much closer. The camera targets follow the
-scene's active camera (`follow_scene_camera`, run by the handlers): a camera made active by
-hand or by a camera marker drives the level of detail.
+By distance the level grows linearly from `near` to `far`. By screen size it follows the
+head's size in the image: the UV resolution falls as 1 / distance, the distance taken
+through the lens (times 50 mm over the focal length, so a head zoomed in on keeps its
+detail), which keeps the Gaussians per pixel of the head the same from `near` to `far`.
+The camera targets follow the scene's active camera (`follow_scene_camera`, run by the
+handlers): a camera made active by hand or by a camera marker drives the level of detail.
 """
 
 from __future__ import annotations
@@ -18,7 +20,12 @@ import bpy
 from .scene_state import head_rig
 
 DRIVER_EXPRESSION = "min(max((d - near) / (far - near) + bias, 0), 1)"
-SCREEN_EXPRESSION = "min(max((d * 50 / lens - near) / (far - near) + bias, 0), 1)"
+# l = (1 - near / d') / (1 - near / far), d' = d * 50 / lens: the UV resolution falls as the
+# head's size on screen, S = S_max near / d', from S_max at `near` to S_max near / far at
+# `far` (with far = near S_max / S_min, S_min there: Gaussians per pixel stay the same)
+SCREEN_EXPRESSION = (
+    "min(max((1 - near * lens / (max(d, 0.001) * 50)) / (1 - near / far) + bias, 0), 1)"
+)
 NEAR_PROP, FAR_PROP = "archhead_lod_near", "archhead_lod_far"
 LOD_PATH = "archhead_avatar.lod"
 BIAS_PATH = "archhead_crowd.lod_bias"  # on the scene (crowd.py)

@@ -29,6 +29,10 @@ class RuntimeState:
     # avatar_session.decoder_key -> the SharedDecoder of every avatar with that checkpoint,
     # identity and display; dropped with its last user.
     decoders: dict[tuple, Any] = field(default_factory=dict)
+    # An avatar object's name -> the session of an avatar that left the scene (undone, deleted):
+    # the RETIRED most recent, kept with their decoded frames for a redo that brings the
+    # object back (forget_object).
+    retired: dict[str, Any] = field(default_factory=dict)
     # (path, size, mtime) -> the checkpoint file's digest: read once for a crowd of heads.
     file_digests: dict[tuple, str] = field(default_factory=dict)
     # Point object session_uid -> the last error of its refresh (shown in the N-panel).
@@ -80,12 +84,21 @@ def object_uids() -> set[int]:
     return set().union(STATE.sessions, STATE.failures, STATE.errors, STATE.decode_progress)
 
 
+RETIRED = 2  # sessions of avatars that left the scene, kept for a redo (forget_object)
+
+
 def forget_object(uid: int) -> None:
-    """Drop everything held for one object (its decoded frames with its session, and the
-    shared decoder when it was the last to use it)."""
+    """Drop everything held for one object. Its session is retired rather than dropped: an
+    undo past Load Avatar removes the object and a redo brings it back as a new one, which
+    takes the retired session, decoded frames and all (avatar_session.session). Only the
+    RETIRED most recent are kept; an older one is dropped with its share of the decoder."""
     current = STATE.sessions.get(uid)
     if current is not None:
-        drop_user(current.decoder_key, uid)
+        STATE.retired.pop(current.name, None)
+        STATE.retired[current.name] = current
+        while len(STATE.retired) > RETIRED:
+            old = STATE.retired.pop(next(iter(STATE.retired)))
+            drop_user(old.decoder_key, old.uid)
     for registry in (STATE.sessions, STATE.failures, STATE.errors, STATE.decode_progress):
         registry.pop(uid, None)
     STATE.frame_codes.pop(uid, None)  # a head's uid, when the object was a head

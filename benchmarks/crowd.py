@@ -2,35 +2,44 @@
 
     python benchmarks/crowd.py [--heads 4,16,64] [--avatars demo,full] [--size 1280x720]
                                [--frames 3] [--json FILE]
+                               [--picture PNG --checkpoint AVATAR.npz [--picture-heads 16]]
 
 For each head count N and avatar size, a fresh process (2 BLAS / OpenMP threads) builds the
-crowd as a user's script would: the demo head imported and its avatar loaded once, then
-duplicated (Shift+D of head, rig and avatar) N - 1 times and spread from 0.5 to 30 m in front
-of the camera, each avatar's level of detail driven by its distance (near 0.5 m, far 30 m).
+crowd as a user's script would: N talking heads imported (the demo sequence, each started at
+another frame, so that no two say the same thing), the avatar loaded on the first, then on
+all the others at once (one Load Avatar with them selected), the heads spread from 0.5 to
+30 m in front of the camera, each avatar's level of detail driven by its size on screen
+(S_max at 0.5 m, S_min from 2 m: the same Gaussians per pixel of a head at any distance).
 The avatars are untrained ones of the "demo" preset's size and of full size (their decode
 costs equal trained ones'). Then it measures, each over --frames frames not seen before:
 
 - RSS after the first head and after all N (the cost of one more head);
-- a frame change (handlers decoding every avatar) with the distance-driven levels and with
-  every avatar held at LOD 0, and their ratio;
+- a frame change (handlers decoding every avatar; the median over the frames) with the
+  distance-driven levels and with every avatar held at LOD 0, and their ratio;
 - Decode Frames over the whole crowd (one pass), per head and frame;
 - the handler on frames already decoded: per head with nothing to change, and per head
   showing a cached frame;
 - an exact render of one frame at --size (the default culling: "Renders"), driven and LOD 0.
 
-Prints a markdown table (and --json: the rows).
+Prints a markdown table (and --json: the rows). --picture also renders a crowd of a trained
+avatar (--checkpoint; the untrained ones draw no face) and writes the driven render there.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-NEAR, FAR = 0.5, 30.0
+NEAR, FAR = 0.5, 30.0  # where the heads stand
+# The driver: by screen size, S_max at 0.5 m and S_min at 4 x that (the same Gaussians per
+# pixel of a head everywhere; docs/blender_avatar.md, "Level of detail")
+DRIVE_NEAR, DRIVE_FAR = 0.5, 2.0
 
 
 def _rss_mb() -> float:
@@ -40,54 +49,85 @@ def _rss_mb() -> float:
     return float("nan")
 
 
-def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int]):
+def _sequence(folder: Path, i: int, offset: bool = True) -> Path:
+    """The demo talking head, its motion started i x 7 frames later (looped) and its
+    expressions offset by a constant of its own: no two heads of the crowd show the same
+    codes at any frame, so none shares another's decoded frames."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from archhead_blender import api
+
+    seq = api.demo_sequence(frames=40)
+    rolled = {k: np.roll(getattr(seq, k), -7 * i, axis=0) for k in ROLLED}
+    if offset:  # (a picture leaves it out: a trained avatar draws the tracked expressions)
+        rolled["expr"] = rolled["expr"] + np.random.default_rng(i).normal(0, 0.3, seq.expr.shape[1])
+    path = folder / f"head_{i:02d}.npz"
+    api.write_canonical(replace(seq, **rolled), path)
+    return path
+
+
+ROLLED = ("expr", "jaw", "neck", "eyes", "rotation")
+
+
+def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], picture=False):
+    """The crowd (module docstring); returns (scene, avatars, RSS with one head, with all)."""
     import bpy
     import numpy as np
 
     from archhead_blender import api
 
     bpy.ops.wm.read_homefile(use_empty=True)
-    api.write_canonical(api.demo_sequence(frames=40), folder / "demo.npz")
-    bpy.ops.archhead.import_sequence(filepath=str(folder / "demo.npz"))
     scene = bpy.context.scene
+    heads = []
+    for i in range(n):
+        path = _sequence(folder, i, offset=not picture)
+        if bpy.ops.archhead.import_sequence(filepath=str(path)) != {"FINISHED"}:
+            raise SystemExit(f"could not import {path}")
+        heads.append(bpy.data.objects[path.stem])
+        if i == 0:  # one head with its avatar: the RSS every further head adds to
+            _load(heads[:1], checkpoint)
+            scene.frame_set(0)
+            rss_first = _rss_mb()
+    _load(heads[1:], checkpoint)  # one Load Avatar on every selected head
     scene.render.resolution_x, scene.render.resolution_y = size
-    head = bpy.data.objects["demo"]
-    bpy.context.view_layer.objects.active = head
-    if bpy.ops.archhead.load_avatar(filepath=str(checkpoint)) != {"FINISHED"}:
-        raise SystemExit(f"could not load {checkpoint}")
-    avatar = bpy.data.objects["demo_avatar"]
-    rig = head.parent
     camera = scene.camera
-    scene.frame_set(0)
-    rss_first = _rss_mb()
     cam = np.array(camera.matrix_world)
     forward = -cam[:3, 2]  # Blender cameras look down their -Z
     right = cam[:3, 0]
-    start = np.array(rig.matrix_world)[:3, 3]
+    start = np.array(heads[0].parent.matrix_world)[:3, 3]
     d0 = np.linalg.norm(start - cam[:3, 3])
-    originals = (head, rig, avatar)
-    rigs = [rig]
-    for i in range(1, n):
-        bpy.ops.object.select_all(action="DESELECT")
-        for obj in originals:
-            obj.select_set(True)
-        bpy.context.view_layer.objects.active = head
-        bpy.ops.object.duplicate(linked=False)
-        new_rig = next(o for o in bpy.context.selected_objects if o.type == "ARMATURE")
+    for i, head in enumerate(heads[1:], 1):
         t = i / max(n - 1, 1)
         distance = NEAR * (FAR / NEAR) ** t  # evenly spread in log distance
         side = (-1) ** i * 0.25 * distance * ((i % 4) / 4)  # spread across the view
-        offset = forward * (distance - d0) + right * side
-        new_rig.location = (start + offset).tolist()
-        rigs.append(new_rig)
+        head.parent.location = (start + forward * (distance - d0) + right * side).tolist()
+    near, far = DRIVE_NEAR, DRIVE_FAR
+    if picture:  # the camera stepped back: the nearest head whole in the frame, at LOD 0
+        camera.location = (np.array(camera.location) - 1.2 * forward).tolist()
+        near, far = near + 1.2, 4 * (near + 1.2)
     avatars = api.scene_avatars(scene)
     for obj in avatars:
-        api.drive_lod_by_distance(obj, camera, NEAR, FAR)
+        api.drive_lod_by_distance(obj, camera, near, far, "SCREEN")
     bpy.context.view_layer.update()
     return scene, avatars, rss_first, _rss_mb()
 
 
-def measure(n: int, kind: str, frames: int, size: tuple[int, int]) -> dict:
+def _load(heads, checkpoint: Path) -> None:
+    import bpy
+
+    if not heads:
+        return
+    bpy.ops.object.select_all(action="DESELECT")
+    for head in heads:
+        head.select_set(True)
+    bpy.context.view_layer.objects.active = heads[0]
+    if bpy.ops.archhead.load_avatar(filepath=str(checkpoint)) != {"FINISHED"}:
+        raise SystemExit(f"could not load {checkpoint}")
+
+
+def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None) -> dict:
     import bpy
 
     from archhead_blender import api
@@ -95,16 +135,20 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int]) -> dict:
 
     api.enable_addon()
     folder = api.scratch_folder("archhead_crowd_")
-    checkpoint = folder / f"avatar_{kind}.npz"
-    python = api.python_with_torch() or sys.executable
-    command = [python, "-m", "archhead_addon.avatar.untrained", str(checkpoint)]
-    subprocess.run(command + (["--preset", "demo"] if kind == "demo" else []), check=True)
+    if kind in ("demo", "full"):
+        checkpoint = folder / f"avatar_{kind}.npz"
+        python = api.python_with_torch() or sys.executable
+        command = [python, "-m", "archhead_addon.avatar.untrained", str(checkpoint)]
+        subprocess.run(command + (["--preset", "demo"] if kind == "demo" else []), check=True)
+    else:  # a trained checkpoint's path
+        checkpoint = Path(kind).resolve()
     watch = api.Stopwatch()
-    scene, avatars, rss_first, rss_all = _build(n, checkpoint, folder, size)
+    scene, avatars, rss_first, rss_all = _build(n, checkpoint, folder, size, bool(picture))
     built_s = watch.seconds
     context = bpy.context
     sessions = [api.session(obj) for obj in avatars]
-    frame = iter(range(1, 40))
+    # frames none of the avatars has shown yet (the build showed the current one)
+    frame = iter(f for f in range(1, 40) if f != scene.frame_current)
 
     def frame_change() -> float:
         f = next(frame)
@@ -115,11 +159,11 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int]) -> dict:
     def gaussians() -> int:
         return sum(len(obj.data.vertices) for obj in avatars)
 
-    driven_ms = min(frame_change() for _ in range(frames))
+    driven_ms = statistics.median(frame_change() for _ in range(frames))
     driven_count = gaussians()
     for s in sessions:
         s.lod_override = 0.0
-    lod0_ms = min(frame_change() for _ in range(frames))
+    lod0_ms = statistics.median(frame_change() for _ in range(frames))
     lod0_count = gaussians()
     for s in sessions:
         s.lod_override = None
@@ -142,6 +186,8 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int]) -> dict:
         start = time.perf_counter()
         api.render_frames(context, [f], out / name, lod=lod, exact=True)
         renders[name] = time.perf_counter() - start
+    if picture:
+        _picture(next((out / "driven").glob("*.png")), picture)
     return {
         "heads": n,
         "avatar": kind,
@@ -158,8 +204,26 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int]) -> dict:
         "handler_ms_per_head_idle": round(idle, 3),
         "render_s_driven": round(renders["driven"], 2),
         "render_s_lod0": round(renders["lod0"], 2),
-        "last_render": str(out / "driven"),
     }
+
+
+def _picture(render: Path, picture: Path) -> None:
+    """The render over white, its empty margins cut, in 256 colours (a small file for the
+    README); copied as it is where Pillow is missing."""
+    try:
+        from PIL import Image
+    except ImportError:
+        shutil.copyfile(render, picture)
+        return
+    image = Image.open(render).convert("RGBA")
+    white = Image.new("RGBA", image.size, (255, 255, 255, 255))
+    flat = Image.alpha_composite(white, image).convert("RGB")
+    box = image.getchannel("A").point(lambda a: 255 if a > 8 else 0).getbbox()
+    if box:
+        pad = 24
+        box = (max(box[0] - pad, 0), max(box[1] - pad, 0), box[2] + pad, box[3] + pad)
+        flat = flat.crop(box)
+    flat.quantize(256, method=Image.Quantize.MEDIANCUT).save(picture, optimize=True)
 
 
 def table(rows: list[dict]) -> str:
@@ -189,6 +253,9 @@ def main(argv=None) -> None:
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--frames", type=int, default=3)
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--picture", type=Path, help="write a driven render of a crowd here")
+    parser.add_argument("--checkpoint", type=Path, help="the trained avatar of --picture")
+    parser.add_argument("--picture-heads", type=int, default=16)
     parser.add_argument("--one", help=argparse.SUPPRESS)  # N,kind: measure in this process
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
@@ -196,22 +263,33 @@ def main(argv=None) -> None:
         from archhead_addon.timing import restart_with_threads
 
         restart_with_threads(2)  # before bpy and numpy load their thread pools
-        n, kind = args.one.split(",")
-        print("ROW " + json.dumps(measure(int(n), kind, args.frames, size)), flush=True)
+        n, kind = args.one.split(",", 1)
+        row = measure(int(n), kind, args.frames, size, args.picture)
+        print("ROW " + json.dumps(row), flush=True)
         return
+    if (args.picture is None) != (args.checkpoint is None):
+        parser.error("--picture and --checkpoint go together")
+
+    def child(n: int, kind: str, picture=None) -> dict:
+        command = [sys.executable, __file__, "--one", f"{n},{kind}"]
+        command += ["--frames", str(args.frames), "--size", args.size]
+        command += ["--picture", str(picture.resolve())] if picture else []
+        done = subprocess.run(command, capture_output=True, text=True)
+        row = [line for line in done.stdout.splitlines() if line.startswith("ROW ")]
+        if done.returncode or not row:
+            print(done.stdout[-3000:], done.stderr[-3000:], file=sys.stderr)
+            raise SystemExit(f"crowd of {n} {kind} avatars failed ({done.returncode})")
+        return json.loads(row[0][4:])
+
     rows = []
-    for kind in args.avatars.split(","):
+    for kind in args.avatars.split(",") if args.avatars else ():
         for n in (int(v) for v in args.heads.split(",")):
-            command = [sys.executable, __file__, "--one", f"{n},{kind}"]
-            command += ["--frames", str(args.frames), "--size", args.size]
-            done = subprocess.run(command, capture_output=True, text=True)
-            row = [line for line in done.stdout.splitlines() if line.startswith("ROW ")]
-            if done.returncode or not row:
-                print(done.stdout[-3000:], done.stderr[-3000:], file=sys.stderr)
-                raise SystemExit(f"crowd of {n} {kind} avatars failed ({done.returncode})")
-            rows.append(json.loads(row[0][4:]))
+            rows.append(child(n, kind))
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     print(table(rows))
+    if args.picture:
+        child(args.picture_heads, str(args.checkpoint.resolve()), args.picture)
+        print(f"crowd picture: {args.picture}")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2))
 

@@ -39,8 +39,9 @@ class ARCHHEAD_OT_drive_lod(bpy.types.Operator):
             (
                 "SCREEN",
                 "Screen size",
-                "The distance seen through the camera's lens (divided by its focal length "
-                "over 50 mm): a head zoomed in on keeps its detail",
+                "The head's size in the image (its distance through the camera's lens): the "
+                "detail falls as the head shrinks, the same Gaussians per pixel from near to "
+                "far when far is 4x near",
             ),
         ),
     )

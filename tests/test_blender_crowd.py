@@ -71,15 +71,18 @@ def test_copies_share_one_decoder_and_decode_in_one_pass(tmp_path, demo_scene, t
     # first's, decoded once into the shared cache
     assert all(first.decoded[f].key == second.decoded[f].key for f in frames)
 
-    # deleting one keeps the shared decoder; deleting both frees it
+    # a deleted avatar's session retires (a redo may bring its object back); its share of
+    # the decoder goes with the oldest retired ones, or a file load
+    prune = _module("avatar_session").prune_sessions
+    copy_name = copy[2].name
     bpy.data.objects.remove(copy[2])
-    bpy.context.view_layer.update()
-    _module("avatar_session").prune_sessions(force=True)
-    assert len(state.decoders) == 1
-    assert first.shared.memory.max_bytes == original[2].archhead_avatar.memory_mb << 20
+    prune(force=True)
+    assert len(state.decoders) == 1 and set(state.retired) == {copy_name}
     bpy.data.objects.remove(original[2])
-    _module("avatar_session").prune_sessions(force=True)
-    assert not state.decoders
+    prune(force=True)
+    assert not state.sessions and len(state.retired) == 2 and len(state.decoders) == 1
+    _module("state").reset()
+    assert not state.decoders and not state.retired
 
 
 def test_a_frame_decoded_ahead_serves_culling_without_a_new_decode(
@@ -183,13 +186,27 @@ def test_crowd_operators_load_drive_and_budget_every_selected_head(
     assert levels() == pytest.approx([v + 0.2 for v in base], abs=1e-5)
     scene.archhead_crowd.lod_bias = 0.0
 
-    # screen size: zooming in (a longer lens) gives the detail of a nearer camera
-    assert bpy.ops.archhead.drive_lod(near=0.1, far=20.0, mode="SCREEN") == {"FINISHED"}
-    lens = scene.camera.data.lens
-    before = levels()
-    scene.camera.data.lens = 2 * lens
-    assert all(z < b for z, b in zip(levels(), before))
-    scene.camera.data.lens = lens
+    # screen size: S falls as 1 / (distance through the lens), S_max at near
+    near, far = 0.2, 0.8
+    assert bpy.ops.archhead.drive_lod(near=near, far=far, mode="SCREEN") == {"FINISHED"}
+    camera = scene.camera
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+
+    def distance(avatar):
+        rig = avatar.archhead_avatar.head.parent.evaluated_get(depsgraph)
+        root = rig.matrix_world @ rig.pose.bones["global"].head
+        return (camera.matrix_world.translation - root).length
+
+    lens = camera.data.lens
+    for zoom in (1.0, 2.0):  # zooming in (a longer lens) gives the detail of a nearer camera
+        camera.data.lens = zoom * lens
+        want = [
+            min(max((1 - near * zoom * lens / (distance(a) * 50)) / (1 - near / far), 0), 1)
+            for a in avatars
+        ]
+        assert levels() == pytest.approx(want, abs=1e-4)
+        assert 0 < min(want) and max(want) < 1  # between near and far: no clamp hides it
+    camera.data.lens = lens
 
     # the scene's Gaussian budget: the avatars show no more than it, together
     scene.archhead_crowd.lod_bias = 0.0
@@ -201,3 +218,20 @@ def test_crowd_operators_load_drive_and_budget_every_selected_head(
     assert shown <= free // 2
     assert shown > free // 8  # raised no further than needed
     scene.archhead_crowd.gaussian_budget = 0
+
+
+def test_an_avatar_that_comes_back_keeps_its_decoded_frames(
+    tmp_path, demo_scene, tiny_checkpoint
+):
+    """What a redo of Load Avatar does (the UI suite presses the keys): the object goes, a new
+    one of its name and settings comes; it takes the retired session, decoded frames and all."""
+    session = _module("avatar_session").session
+    head, _ = demo_scene(tmp_path)
+    _, _, obj = _avatar_set(head, tiny_checkpoint)
+    _module("decoding").decode_frames(bpy.context, obj, [2, 3])
+    decoded = dict(session(obj).decoded)
+    bpy.data.objects.remove(obj)
+    bpy.context.view_layer.update()
+    _, _, back = _avatar_set(head, tiny_checkpoint)
+    assert session(back).decoded.keys() == decoded.keys() == {2, 3}
+    assert all(session(back).decoded[f].key == decoded[f].key for f in decoded)
