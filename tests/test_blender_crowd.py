@@ -148,7 +148,8 @@ def test_the_budget_raises_every_level_by_the_least_common_amount():
     assert crowd.budget_bias(wanted, sizes, 100) == 1.0  # not even LOD 1 everywhere fits
 
     def total(b):
-        return sum(crowd.gaussians_at(min(w + b, 1), *s) for w, s in zip(wanted, sizes))
+        pairs = zip(wanted, sizes, strict=True)
+        return sum(crowd.gaussians_at(min(w + b, 1), *s) for w, s in pairs)
 
     budget = 50_000
     b = crowd.budget_bias(wanted, sizes, budget)
