@@ -221,9 +221,7 @@ def test_crowd_operators_load_drive_and_budget_every_selected_head(
     scene.archhead_crowd.gaussian_budget = 0
 
 
-def test_an_avatar_that_comes_back_keeps_its_decoded_frames(
-    tmp_path, demo_scene, tiny_checkpoint
-):
+def test_an_avatar_that_comes_back_keeps_its_decoded_frames(tmp_path, demo_scene, tiny_checkpoint):
     """What a redo of Load Avatar does (the UI suite presses the keys): the object goes, a new
     one of its name and settings comes; it takes the retired session, decoded frames and all."""
     session = _module("avatar_session").session
