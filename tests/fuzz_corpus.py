@@ -24,6 +24,7 @@ measuring the peak allocation. Outcomes:
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import multiprocessing
@@ -36,6 +37,7 @@ import time
 import tracemalloc
 import warnings
 import zipfile
+import zlib
 from collections import Counter
 from dataclasses import fields, is_dataclass
 from pathlib import Path
@@ -277,6 +279,15 @@ def _train_state_damage(state: dict) -> list[tuple[str, dict]]:
          lambda s: s["optimizer"]["param_groups"][2]["params"].__setitem__(0, 0))  # fmt: skip
     case("refinement without its groups",
          lambda s: s.__setitem__("refinement", {"expr": np.zeros((4, 5), F32)}))  # fmt: skip
+    # finite magnitudes no run reaches (state_file.PARAMETER_LIMIT, MOMENT_LIMITS)
+    for value in (1e30, 2e6):
+        case(f"model weight {value:g}",
+             lambda s, v=value: s["model"]["mapping.0.bias"].__setitem__(0, v))  # fmt: skip
+        case(f"optimizer exp_avg {value:g}",
+             lambda s, v=value: s["optimizer"]["state"][first]["exp_avg"].fill(v))  # fmt: skip
+    for value in (1e30, 2e12):
+        case(f"optimizer exp_avg_sq {value:g}",
+             lambda s, v=value: s["optimizer"]["state"][first]["exp_avg_sq"].fill(v))  # fmt: skip
     return out
 
 
@@ -539,7 +550,124 @@ def npz_mutations(arrays: dict, rng) -> list[tuple[str, bytes]]:
             np.save(member, np.array([v, None], dtype=object) if k == next(iter(arrays)) else v)
             z.writestr(f"{k}.npy", member.getvalue())
     out.append(("object-dtype member (pickle inside)", obj.getvalue()))
-    return out
+    return out + npz_size_bombs(arrays)
+
+
+# ------------------------------------------------------------------------- size bombs
+
+BOMB_BYTES = 3 << 30  # what each crafted file below declares: 3 GiB from about 3 MB
+
+
+def _zeros_crc(n_mib: int, crc: int = 0) -> int:
+    zero = bytes(1 << 20)
+    for _ in range(n_mib):
+        crc = zlib.crc32(zero, crc)
+    return crc
+
+
+@functools.cache
+def _deflated(head: bytes, n_mib: int) -> tuple[bytes, int]:
+    """A raw deflate stream of `head` then `n_mib` MiB of zeros, and its CRC-32: each MiB
+    is deflated once after a full flush (which resets the window), so the stream is that
+    MiB's 1 kB repeated, built in milliseconds."""
+    c = zlib.compressobj(9, zlib.DEFLATED, -15)
+    first = c.compress(head) + c.flush(zlib.Z_FULL_FLUSH)
+    mib = c.compress(bytes(1 << 20)) + c.flush(zlib.Z_FULL_FLUSH)
+    return first + mib * n_mib + c.flush(), _zeros_crc(n_mib, zlib.crc32(head))
+
+
+def raw_zip(members: list[tuple[str, int, bytes, int, int]]) -> bytes:
+    """A zip archive written field by field from (name, method, payload as stored, CRC-32,
+    declared uncompressed size): the directory says whatever it is given."""
+    body, central = b"", b""
+    for name, method, payload, crc, size in members:
+        fixed = struct.pack("<HHHHHIII", 20, 0, method, 0, 0x21, crc, len(payload), size)
+        head = fixed + struct.pack("<HH", len(name), 0) + name.encode()
+        central += b"PK\x01\x02" + struct.pack("<H", 20) + head[: -len(name)]
+        central += struct.pack("<HHHII", 0, 0, 0, 0, len(body)) + name.encode()
+        body += b"PK\x03\x04" + head + payload
+    end = struct.pack("<4sHHHHIIH", b"PK\x05\x06", 0, 0, len(members), len(members),
+                      len(central), len(body), 0)  # fmt: skip
+    return body + central + end
+
+
+def _members(data: bytes) -> list[tuple[str, int, bytes, int, int]]:
+    import io
+
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        return [(i.filename, zipfile.ZIP_STORED, z.read(i), i.CRC, i.file_size)
+                for i in z.infolist()]  # fmt: skip
+
+
+def torch_size_bombs(data: bytes) -> list[tuple[str, bytes]]:
+    """A torch.save archive (`data`) whose first storage (`data/0`, the first tensor's)
+    declares 3 GiB: in its pickle's persistent id, in its member, or both."""
+    import re
+
+    members = _members(data)
+    at = next(i for i, m in enumerate(members) if m[0].endswith("/data/0"))
+    name, _, payload, _, size = members[at]
+    stream, crc = _deflated(b"", BOMB_BYTES >> 20)
+    pkl = next(i for i, m in enumerate(members) if m[0].endswith("/data.pkl"))
+    numel = re.compile(rb"(X\x03\x00\x00\x00cpuq.)(K.|M..|J....)t", re.DOTALL)
+
+    def archive(storage=None, elements=None):
+        out = list(members)
+        if storage is not None:
+            out[at] = storage
+        if elements is not None:
+            p = out[pkl]
+            new = numel.sub(lambda m: m[1] + b"J" + struct.pack("<i", elements) + b"t", p[2], 1)
+            out[pkl] = (p[0], p[1], new, zlib.crc32(new), len(new))
+        return raw_zip(out)
+
+    deflated = (name, zipfile.ZIP_DEFLATED, stream, crc, BOMB_BYTES)
+    # the directory declares the storage's true size, its bytes inflate to 3 GiB
+    lying = (name, zipfile.ZIP_DEFLATED, stream, zlib.crc32(bytes(size)), size)
+    # the directory declares as many bytes as the stream has compressed (within deflate's
+    # bound), its bytes inflate to 3 GiB: read up to the declared size, a tensor of zeros
+    fits = (name, zipfile.ZIP_DEFLATED, stream, zlib.crc32(bytes(len(stream))), len(stream))
+    # a stored member the directory says is 3 GiB, holding what deflate's ratio allows
+    big = bytes(BOMB_BYTES // 1000)
+    stored = (name, zipfile.ZIP_STORED, big, zlib.crc32(big), BOMB_BYTES)
+    return [
+        ("storage of 3 GiB, deflated (pickle and directory agree)",
+         archive(deflated, BOMB_BYTES // 4)),
+        ("storage member inflating to 3 GiB, directory says its true size",
+         archive(lying)),
+        ("storage member inflating to 3 GiB, directory says 3 MB", archive(fits)),
+        ("pickle declares a storage of 3 GiB over a small member",
+         archive(elements=BOMB_BYTES // 4)),
+        ("pickle declares 3 GiB, member inflates to 3 GiB, directory says its true size",
+         archive(lying, BOMB_BYTES // 4)),
+        ("storage stored, its directory entry claims 3 GiB", archive(stored, BOMB_BYTES // 4)),
+    ]  # fmt: skip
+
+
+def npz_size_bombs(arrays: dict) -> list[tuple[str, bytes]]:
+    """The first member of an npz made to declare 3 GiB: an npy header whose shape says so,
+    with the member deflated to 3 MB, stored, or with a directory that understates it."""
+    key = next(iter(arrays))
+    members = _members(npz_bytes(arrays))
+    name, _, payload, _, size = members[0]
+    header = npy_header_bomb((BOMB_BYTES // 8,))[:-64]
+    stream, crc = _deflated(header, BOMB_BYTES >> 20)
+    held = header + bytes(BOMB_BYTES // 1000)
+    cases = {
+        "deflated to 3 MB (header and directory agree)":
+            (name, zipfile.ZIP_DEFLATED, stream, crc, len(header) + BOMB_BYTES),
+        "inflating to 3 GiB, directory says the seed's size":
+            (name, zipfile.ZIP_DEFLATED, stream, zlib.crc32(payload), size),
+        "stored, directory claims 3 GiB for 3 MB":
+            (name, zipfile.ZIP_STORED, held, zlib.crc32(held), len(header) + BOMB_BYTES),
+        "header alone (64 bytes held)":
+            (name, zipfile.ZIP_STORED, header + bytes(64), zlib.crc32(header + bytes(64)),
+             len(header) + 64),
+    }  # fmt: skip
+    return [
+        (f"{key} header claims 3 GiB, {label}", raw_zip([member, *members[1:]]))
+        for label, member in cases.items()
+    ]
 
 
 def pickle_mutations(d: dict, rng, marker: Path, splice) -> list[tuple[str, bytes]]:
@@ -725,7 +853,8 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
     family("metrical .frame", "00001.frame", torch_bytes(frame),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(frame, rng)]
            + pickle_mutations(frame, rng, marker, splice_torch)
-           + zip_mutations(torch_bytes(frame))
+           + zip_mutations(torch_bytes(frame)) + torch_size_bombs(torch_bytes(frame))
+           + _metrical_cases(frame)
            + byte_mutations(torch_bytes(frame), rng))  # fmt: skip
     fht = _fht_arrays()
     family("flame-head-tracker npz", "3.npz", npz_bytes(fht),
@@ -741,7 +870,8 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
     family("driving clip .pt", "c.pt", torch_bytes(clip),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(clip, rng)]
            + pickle_mutations(clip, rng, marker, splice_torch)
-           + zip_mutations(torch_bytes(clip)) + byte_mutations(torch_bytes(clip), rng))  # fmt: skip
+           + zip_mutations(torch_bytes(clip)) + torch_size_bombs(torch_bytes(clip))
+           + byte_mutations(torch_bytes(clip), rng))  # fmt: skip
     ckpt = _checkpoint_arrays()
     with np.load(__import__("io").BytesIO(ckpt)) as z:
         ckpt_arrays = {k: z[k] for k in z.files}
@@ -767,11 +897,25 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(state_np, rng)]
            + [(lbl, torch_bytes(d)) for lbl, d in _train_state_damage(state_np)]
            + pickle_mutations(state_np, rng, marker, splice_torch)
-           + zip_mutations(torch_bytes(state_np))
+           + zip_mutations(torch_bytes(state_np)) + torch_size_bombs(torch_bytes(state_np))
            + byte_mutations(torch_bytes(state_np), rng))  # fmt: skip
     ply = _ply_bytes()
     family("PLY", "a.ply", ply, ply_mutations(ply, rng) + byte_mutations(ply, rng))
     return items
+
+
+def _metrical_cases(frame: dict) -> list[tuple[str, bytes]]:
+    """Degenerate 6D rotations (no rotation matrix at all), each alone in a good frame."""
+    parallel = np.array([[0, 2, 0, 0, -1, 0]], F32)
+    cases = {
+        "flame.jaw 6D of zeros": ("jaw", np.zeros((1, 6), F32)),
+        "flame.jaw 6D of two parallel vectors": ("jaw", parallel),
+        "flame.eyes second 6D of zeros": ("eyes", np.array([[1, 0, 0, 0, 1, 0] + [0] * 6], F32)),
+    }
+    return [
+        (label, torch_bytes({**frame, "flame": {**frame["flame"], key: value}}))
+        for label, (key, value) in cases.items()
+    ]
 
 
 def _canonical_cases(seq: dict) -> list[tuple[str, bytes]]:

@@ -39,3 +39,19 @@ def test_checksummed_files_never_come_back_changed(results):
         if r["reader"] in ("avatar checkpoint", "decode cache") and r["outcome"] == "changed"
     ]
     assert not changed
+
+
+CRAFTED = ("3 GiB", "6D", "model weight", "optimizer exp_avg")
+"""Labels of cases crafted for issue 33: files declaring 3 GiB (refused before anything is
+inflated or allocated: tests/test_size_bombs.py measures their memory), degenerate 6D
+rotations, training states with weights or Adam moments past state_file's limits."""
+
+
+def test_crafted_cases_are_refused(results):
+    crafted = [r for r in results if any(k in r["label"] for k in CRAFTED)]
+    # 6 per torch.save reader (3), 4 per npz reader (7; the vhap folder takes every other
+    # one), 3 rotations, 6 training states
+    assert len(crafted) == 3 * 6 + 7 * 4 + 2 + 3 + 6, len(crafted)
+    assert all(r["outcome"] == "error" for r in crafted), [
+        (r["reader"], r["label"], r["outcome"]) for r in crafted if r["outcome"] != "error"
+    ]

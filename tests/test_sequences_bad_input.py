@@ -115,6 +115,21 @@ def test_wrong_shapes(tmp_path):
     )
 
 
+@pytest.mark.parametrize(
+    "key, value, problem",
+    [
+        ("jaw", np.zeros((1, 6)), r"degenerate 6D rotation in frame 1: \[0\.0, 0\.0, 0\.0, 0"),
+        ("jaw", [[0, 2, 0, 0, -1, 0]], "degenerate 6D rotation in frame 1"),  # parallel
+        ("eyes", [[1, 0, 0, 0, 1, 0] + [0] * 6], r"degenerate 6D rotation \(rotation 1\)"),
+    ],
+)
+def test_degenerate_6d_rotations(tmp_path, key, value, problem):
+    write_metrical(tmp_path, n=2)
+    frame = tmp_path / "checkpoint" / "00001.frame"
+    _edit_frame(frame, lambda f: f["flame"].update({key: np.array(value, np.float32)}))
+    _raises(frame, f"flame.{key}", problem, tmp_path)
+
+
 def test_images_of_different_sizes(tmp_path):
     write_metrical(tmp_path, n=2)
     _edit_frame(

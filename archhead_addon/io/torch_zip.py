@@ -21,7 +21,9 @@ every other name is refused before anything is called. Tensors come back as nump
 The legacy pre-1.6 format (one pickle stream, no zip) is refused with a message saying so.
 The archive's directory is checked first (io/zip_check.py), the pickle is bounded like any
 other (io/pickle_scan.py), and no tensor may need more bytes than the archive holds (zero
-strides let a few stored bytes claim a huge tensor).
+strides let a few stored bytes claim a huge tensor). Members are read up to their declared
+size, each size checked first (a storage against its persistent id's element count and the
+file's size), never through `ZipFile.read`, which inflates up to 1 GiB before it cuts.
 """
 
 from __future__ import annotations
@@ -172,15 +174,17 @@ class _TorchUnpickler(RestrictedUnpickler):
         _, stype, key, _location, numel = pid
         if key not in self._storages:
             dtype = stype.dtype.newbyteorder(">") if self._big else stype.dtype
+            name = f"{self._prefix}data/{key}"
             try:
-                raw = self._archive.read(f"{self._prefix}data/{key}")
+                info = self._archive.getinfo(name)
             except KeyError:
                 raise ValueError(f"storage '{key}' is missing from the archive") from None
-            if len(raw) < numel * dtype.itemsize:
+            if info.file_size != numel * dtype.itemsize:  # from the directory, nothing read
                 raise ValueError(
-                    f"storage '{key}' holds {len(raw)} bytes, fewer than "
-                    f"{numel} elements of {stype.name}"
+                    f"storage '{key}' holds {info.file_size} bytes, not the "
+                    f"{numel} elements of {stype.name} its tensor's pickle declares"
                 )
+            raw = read_member(self._archive, info, self._max_bytes)
             array = np.frombuffer(raw, dtype=dtype, count=numel)
             self._storages[key] = _Storage(
                 array,
@@ -249,9 +253,32 @@ def _pickle_entry(archive: zipfile.ZipFile, path) -> tuple[bytes, str, bool]:
             f"expected one '<name>/data.pkl' entry in the zip archive, found {len(pickles)}",
         )
     prefix = pickles[0][: -len("data.pkl")]
+    limit = path.stat().st_size + (1 << 20)
     order = "little"
     if prefix + "byteorder" in archive.namelist():
-        order = archive.read(prefix + "byteorder").decode("ascii", "replace").strip()
+        raw = read_member(archive, archive.getinfo(prefix + "byteorder"), 64, path)
+        order = raw.decode("ascii", "replace").strip()
     if order not in ("little", "big"):
         raise InputError(path, None, f"unknown byteorder '{order:.40}' in the archive")
-    return archive.read(pickles[0]), prefix, order == "big"
+    return read_member(archive, archive.getinfo(pickles[0]), limit, path), prefix, order == "big"
+
+
+def read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, limit: int, path=None) -> bytes:
+    """A member's bytes, at most its declared size, refused above `limit` before a byte is
+    inflated. `ZipFile.read` inflates up to 1 GiB per call whatever the directory declares,
+    then cuts it to the declared size: a lying directory costs gigabytes there (issue 33).
+    InputError naming the member when `path` is given, else ValueError (inside the pickle)."""
+    problem = None
+    if info.file_size > limit:
+        problem = f"member of {info.file_size} bytes, above this file's limit of {limit}"
+    else:
+        with archive.open(info) as f:
+            data = f.read(info.file_size)
+            f.read(1)  # at the end: checks the CRC
+        if len(data) != info.file_size:
+            problem = f"member ends after {len(data)} of its {info.file_size} bytes"
+    if problem is None:
+        return data
+    if path is None:
+        raise ValueError(f"{info.filename}: {problem}")
+    raise InputError(path, info.filename, problem)

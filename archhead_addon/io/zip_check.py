@@ -2,7 +2,10 @@
 member is read: what Python's zipfile would fail on with a raw traceback (deflate64,
 encryption), what it would silently resolve (duplicate names: the last one wins), and sizes
 that no real file has (a member claiming more than deflate can expand to, or more than the
-reader's limit) are refused with an InputError before anything is allocated."""
+reader's limit) are refused with an InputError before anything is allocated. A directory
+cannot understate a member either: a stored member holds exactly what it declares, a deflated
+one no more compressed bytes than deflate makes of its declared size (zipfile would inflate
+the rest, up to 1 GiB at a time, before cutting it to the declared size)."""
 
 from __future__ import annotations
 
@@ -59,6 +62,20 @@ def check_directory(archive: zipfile.ZipFile, path, max_bytes: int, file_size: i
             )
         if info.header_offset + info.compress_size > file_size:  # zipfile would allocate it
             raise InputError(path, name, "member runs past the end of the file (truncated?)")
+        if info.compress_type == zipfile.ZIP_STORED and info.compress_size != info.file_size:
+            raise InputError(
+                path,
+                name,
+                f"stored (uncompressed) member claims {info.file_size} bytes and holds "
+                f"{info.compress_size}: a damaged or forged directory",
+            )
+        if info.compress_size > _deflate_bound(info.file_size):  # its stream goes on
+            raise InputError(
+                path,
+                name,
+                f"{info.compress_size} compressed bytes for {info.file_size} uncompressed: "
+                "more than deflate makes of that size (a directory that understates it)",
+            )
         if info.file_size > MAX_DEFLATE_RATIO * max(info.compress_size, 1) + 1024:
             raise InputError(
                 path,
@@ -83,3 +100,9 @@ def check_directory(archive: zipfile.ZipFile, path, max_bytes: int, file_size: i
             None,
             f"members hold {total} bytes uncompressed, above this reader's limit of {max_bytes}",
         )
+
+
+def _deflate_bound(size: int) -> int:
+    """The most bytes deflate may take for `size` bytes: zlib's deflateBound is size + size/4096
+    + size/16384 + 13 (stored blocks cost 5 bytes per 64 KiB); this is more generous."""
+    return size + (size >> 10) + 64

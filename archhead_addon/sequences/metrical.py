@@ -87,6 +87,30 @@ def _section(payload, key: str, path: Path) -> dict:
     return section
 
 
+# A 6D rotation holds two rows of a rotation matrix (norm 1 each, orthogonal); Gram-Schmidt
+# makes a rotation of any two independent vectors, but of a zero vector, or of two parallel
+# ones, it makes no rotation at all (a singular matrix, then an arbitrary axis-angle). The
+# limit is far below any tracker's values, as singular camera matrices are (cameras.py).
+DEGENERATE_6D = 1e-6
+
+
+def _check_6d(d6: np.ndarray, path: Path, key: str, number: int) -> None:
+    """InputError naming the key and frame for a 6D rotation (rows of `d6`) whose first
+    vector is (near) zero or whose second has no part orthogonal to it."""
+    a1, a2 = d6[:, :3], d6[:, 3:]
+    n1 = np.linalg.norm(a1, axis=1)
+    b1 = a1 / np.maximum(n1, DEGENERATE_6D)[:, None]
+    n2 = np.linalg.norm(a2 - (b1 * a2).sum(axis=1, keepdims=True) * b1, axis=1)
+    for i in np.flatnonzero((n1 < DEGENERATE_6D) | (n2 < DEGENERATE_6D)):
+        which = f" (rotation {i})" if len(d6) > 1 else ""
+        raise InputError(
+            path,
+            key,
+            f"degenerate 6D rotation{which} in frame {number}: {d6[i].tolist()} "
+            "(a zero first vector or two parallel vectors are no rotation)",
+        )
+
+
 def _read_frame(path: Path, number: int) -> dict:
     payload = load_torch_file(path)
     sections = {part: _section(payload, part, path) for part in ("flame", "opencv")}
@@ -94,8 +118,13 @@ def _read_frame(path: Path, number: int) -> dict:
     def value(part, key, *shapes, **kw):
         return get(sections[part], key, path, *shapes, frame=number, name=f"{part}.{key}", **kw)
 
-    jaw = rotation_6d_to_matrix(value("flame", "jaw", (1, 6)).reshape(6))
-    eyes = rotation_6d_to_matrix(value("flame", "eyes", (1, 12)).reshape(2, 6))
+    def rotation(key, shape):
+        d6 = value("flame", key, shape).reshape(-1, 6)
+        _check_6d(d6, path, f"flame.{key}", number)
+        return rotation_6d_to_matrix(d6)
+
+    jaw = rotation("jaw", (1, 6))[0]
+    eyes = rotation("eyes", (1, 12))
     eyelids = value("flame", "eyelids", (1, 2), default=None)
     size = get(payload, "img_size", path, (2,), (1, 2), frame=number).reshape(2)
     return {

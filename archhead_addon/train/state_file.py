@@ -4,7 +4,8 @@ key, so a damaged or foreign file is an InputError naming the key instead of a K
 a NaN deep inside the optimizer. The optimizer's groups and per-parameter state are checked
 against the saved model's tensors (and the refinement's), in the order `Trainer` builds its
 Adam groups: torch's `load_state_dict` checks only the group sizes, and a moment of the
-wrong shape would fail inside Adam's first step."""
+wrong shape would fail inside Adam's first step. Finite values no run produces (a weight or a
+moment of 1e30) are refused too: past PARAMETER_LIMIT and MOMENT_LIMITS below."""
 
 from __future__ import annotations
 
@@ -25,6 +26,17 @@ STATE_FORMAT, STATE_VERSION = "archhead-train-state", 1
 # then one group "codes" per refined code, one parameter per frame (refine.py)
 MODEL_GROUPS = ("features", "mapping", "decoder")
 ADAM_STATE = ("step", "exp_avg", "exp_avg_sq")
+# Finite magnitudes no training run produces (issue 33), refused with the key named: a
+# weight of 1e30 is finite, yet its forward pass is Inf and its first step a NaN.
+# - Parameters (the model's tensors, the refined code deltas, identity_offset): above 1e6,
+#   float32's spacing is 0.0625 or more, coarser than Adam's steps (about the rate, 1e-3 to
+#   5e-3, at most 0.1 plausibly): Adam could not have brought a weight there, nor move it
+#   once there, and one such weight saturates every activation after it.
+# - exp_avg, a running mean of gradients: a gradient of 1e6 on a loss of order 1 is a run
+#   that has diverged (the next step would be one of about the rate, in a random direction).
+# - exp_avg_sq, a running mean of squared gradients: the square of that limit.
+PARAMETER_LIMIT = 1e6
+MOMENT_LIMITS = {"exp_avg": 1e6, "exp_avg_sq": 1e12}
 
 
 def read_train_state(path) -> dict:
@@ -57,11 +69,11 @@ def read_train_state(path) -> dict:
     _model(state.get("model"), path, parameter_shapes(parsed["avatar_config"]))
     offset = state.get("identity_offset")
     if offset is not None:
-        _tensors({"": offset}, path, "identity_offset")
+        _tensors({"": offset}, path, "identity_offset", PARAMETER_LIMIT)
         if offset.ndim != 2 or offset.shape[1] != 3:
             raise InputError(path, "identity_offset", f"expected (V, 3), found {offset.shape}")
     if state.get("refinement") is not None:  # lr.codes > 0 (train/refine.py)
-        _tensors(state["refinement"], path, "refinement")
+        _tensors(state["refinement"], path, "refinement", PARAMETER_LIMIT)
     if getattr(parsed["config"].lr, "codes", 0) > 0 and not state.get("refinement"):
         raise InputError(path, "refinement", "missing: the run's config refines the codes")
     _optimizer(state.get("optimizer"), path, _parameters(state, path))
@@ -79,7 +91,7 @@ def _text(state: dict, key: str, path) -> str:
     return value
 
 
-def _tensors(value, path, key: str) -> None:
+def _tensors(value, path, key: str, limit: float | None = None) -> None:
     if not isinstance(value, dict) or not value:
         raise InputError(path, key, "missing or not a dict of arrays")
     for name, array in value.items():
@@ -87,6 +99,20 @@ def _tensors(value, path, key: str) -> None:
         if not isinstance(array, np.ndarray) or array.dtype.kind not in "fiub":
             raise InputError(path, where, "not a real-valued tensor")
         check_finite(array, path, where)
+        if limit is not None:
+            _magnitude(array, path, where, limit)
+
+
+def _magnitude(array: np.ndarray, path, key: str, limit: float) -> None:
+    """InputError when a finite value of `array` is beyond `limit` in magnitude."""
+    biggest = float(np.abs(array).max()) if array.size and array.dtype.kind == "f" else 0.0
+    if biggest > limit:
+        raise InputError(
+            path,
+            key,
+            f"magnitude {biggest:.3g} is above {limit:g}: no training run reaches it "
+            "(a damaged or diverged state)",
+        )
 
 
 def _model(value, path, shapes: dict[str, tuple[int, ...]]) -> None:
@@ -112,6 +138,7 @@ def _model(value, path, shapes: dict[str, tuple[int, ...]]) -> None:
             raise InputError(
                 path, f"model.{key}", f"shape {value[key].shape}, avatar_config needs {want}"
             )
+        _magnitude(value[key], path, f"model.{key}", PARAMETER_LIMIT)
     extra = sorted(set(value) - set(shapes) - {"identity_shape"})
     if extra:
         raise InputError(path, f"model.{extra[0]}", "not a tensor of the avatar_config's model")
@@ -191,6 +218,8 @@ def _optimizer(value, path, expected: list[tuple[str, list[tuple[int, ...]]]]) -
             )
         if (entry["exp_avg_sq"] < 0).any():
             raise InputError(path, f"{where}.exp_avg_sq", "negative: a mean of squares is >= 0")
+        for name, limit in MOMENT_LIMITS.items():
+            _magnitude(entry[name], path, f"{where}.{name}", limit)
         for name, moment in entry.items():
             if name != "step" and moment.shape != shapes[index]:
                 raise InputError(
