@@ -91,9 +91,10 @@ class SharedDecoder:
         self.disk = _disk_cache(settings)
         self.budgets: dict[int, int] = {}  # user's session_uid -> its memory budget, bytes
 
-    def texels_at_max(self) -> int:
-        """The avatar's texels at LOD 0: its Gaussians before opacity and culling."""
-        return len(self.runtime.raster.table(self.runtime.config.s_max).texel)
+    def texels_at_ends(self) -> tuple[int, int]:
+        """The avatar's texels at LOD 0 and LOD 1: its Gaussians before opacity and culling."""
+        cfg, raster = self.runtime.config, self.runtime.raster
+        return len(raster.table(cfg.s_max).texel), len(raster.table(cfg.s_min).texel)
 
     def use(self, uid: int, memory_mb: int) -> None:
         """Count an avatar among the users: the memory cache holds the sum of their budgets

@@ -4,11 +4,11 @@ the Gaussians they show fit (`Scene.archhead_crowd.gaussian_budget`).
 Each avatar asks for its own level (slider, keys, distance driver). When their Gaussians
 would pass the budget, one common amount b >= 0 is added to every level (each clamped to 1)
 with b the smallest that fits: far heads, already coarse, reach LOD 1 first, and the near
-ones keep what detail the budget allows. A level's count is its texels: n(S) = n_max
-(S / S_max)^2, S the UV resolution of the level (the demo avatar's texels at S = 128 / 80 /
-32: 15,063 / 5,862 / 969, the formula's 15,063 / 5,884 / 941), an estimate of what is drawn:
-opacity and culling leave some out. When even LOD 1 everywhere does not fit, every
-avatar shows LOD 1.
+ones keep what detail the budget allows. A level's count is its texels, which grow as the
+UV area (S^2) plus the charts' edges (S): n(S) = a S^2 + b S through the counts at S_max and
+S_min, exact there (the demo avatar's texels at S = 128 / 80 / 32: 15,063 / 5,862 / 969;
+the fit's 15,063 / 5,918 / 969). Opacity and culling leave some out, so what is drawn stays
+under the budget. When even LOD 1 everywhere does not fit, every avatar shows LOD 1.
 """
 
 from __future__ import annotations
@@ -18,16 +18,22 @@ from archhead_addon.avatar.lod import resolution_for_lod
 BISECTIONS = 30  # b to 1e-9: far below one UV resolution step
 
 
-def gaussians_at(lod: float, n_max: int, s_max: int, s_min: int) -> float:
-    """The Gaussians an avatar with n_max at LOD 0 decodes at `lod`."""
+def gaussians_at(lod: float, n_max: int, s_max: int, s_min: int, n_min: int = 0) -> float:
+    """The texels an avatar with n_max at S_max (LOD 0) and n_min at S_min (LOD 1) decodes
+    at `lod` (n_min 0: the S^2 law alone)."""
     size = resolution_for_lod(lod, s_max, s_min)[1]
-    return n_max * (size / s_max) ** 2
+    if not n_min or s_max == s_min:
+        return n_max * (size / s_max) ** 2
+    # a S^2 + b S through both ends
+    a = (n_max / s_max - n_min / s_min) / (s_max - s_min)
+    b = n_max / s_max - a * s_max
+    return a * size * size + b * size
 
 
-def budget_bias(wanted: list[float], sizes: list[tuple[int, int, int]], budget: int) -> float:
+def budget_bias(wanted: list[float], sizes: list[tuple], budget: int) -> float:
     """The smallest b >= 0 with sum of gaussians_at(min(l + b, 1)) <= budget, for levels
-    `wanted` and each avatar's (n_max, s_max, s_min); 0 when they fit as they are (or there
-    is no budget), 1 when nothing fits."""
+    `wanted` and each avatar's (n_max, s_max, s_min, n_min); 0 when they fit as they are (or
+    there is no budget), 1 when nothing fits."""
 
     def total(b: float) -> float:
         return sum(gaussians_at(min(l + b, 1.0), *s) for l, s in zip(wanted, sizes, strict=True))
@@ -57,7 +63,8 @@ def budgeted_lods(scene, depsgraph, objs) -> dict[int, float]:
             continue
         cfg = avatar.runtime.config
         wanted.append(avatar_lod(obj, depsgraph))
-        sizes.append((avatar.shared.texels_at_max(), cfg.s_max, cfg.s_min))
+        n_max, n_min = avatar.shared.texels_at_ends()
+        sizes.append((n_max, cfg.s_max, cfg.s_min, n_min))
         uids.append(obj.session_uid)
     budget = scene_budget(scene)
     b = budget_bias(wanted, sizes, budget) if budget else 0.0

@@ -234,3 +234,19 @@ def test_an_avatar_that_comes_back_keeps_its_decoded_frames(tmp_path, demo_scene
     _, _, back = _avatar_set(head, tiny_checkpoint)
     assert session(back).decoded.keys() == decoded.keys() == {2, 3}
     assert all(session(back).decoded[f].key == decoded[f].key for f in decoded)
+
+
+def test_the_texel_count_fit_is_exact_at_both_ends_and_close_between(
+    tmp_path, demo_scene, tiny_checkpoint
+):
+    crowd, session = _module("crowd"), _module("avatar_session").session
+    head, _ = demo_scene(tmp_path)
+    _, _, obj = _avatar_set(head, tiny_checkpoint)
+    avatar = session(obj)
+    cfg, raster = avatar.runtime.config, avatar.runtime.raster
+    n_max, n_min = avatar.shared.texels_at_ends()
+    for lod in (0.0, 0.3, 0.5, 0.8, 1.0):
+        size = avatar.runtime.resolution(lod)
+        true = len(raster.table(size).texel)
+        fit = crowd.gaussians_at(lod, n_max, cfg.s_max, cfg.s_min, n_min)
+        assert fit == pytest.approx(true, rel=0.03 if 0 < lod < 1 else 1e-9)

@@ -1,9 +1,12 @@
 """An artist's first session: File > Import through the file browser, the panel, Load Avatar
 (a failed one first: the scene stays as it was), undo and redo of both, a failed Replace
 Checkpoint, a modal Decode cancelled half way, Ctrl+Z / Ctrl+Shift+Z after it and after a
-finished Decode (the avatar and its decoded frames stay), LOD by hand and by the
+finished Decode (the avatar and its decoded frames stay), undo past Load Avatar and redo
+(the decoded frames come back with it), LOD by hand and by the
 camera-distance driver while the camera moves and the timeline plays, and from another
-camera made active during playback, save.
+camera made active during playback, undo and redo of Drive LOD; then a crowd: Shift+D of a
+head, Load Avatar on both heads at once, Alt+D of an avatar's head, Decode Frames of all
+three in one pass with undo and redo, the scene's LOD bias and Gaussian budget; save.
 
     blender --python scene_workflow.py -- SEQUENCE.npz AVATAR.npz OUT.blend
 """
@@ -176,6 +179,27 @@ def decode_and_undo(ui):
     ui.screenshot("decode_redone")
 
 
+def undo_past_load(ui):
+    """Ctrl+Z until Load Avatar itself is undone (the avatar object gone), then Ctrl+Shift+Z
+    as many times: the avatar comes back with the frames it had decoded."""
+    name = f"{HEAD}_avatar"
+    before = _avatar_and_frames()
+    check(before and before["decoded"], f"nothing decoded before the undo: {before}")
+    presses = 0
+    while name in bpy.data.objects:
+        check(presses < 4, "four Ctrl+Z did not undo Load Avatar")
+        ui.key("Z", ctrl=True)
+        presses += 1
+        yield 1.0
+    for _ in range(presses):
+        ui.key("Z", ctrl=True, shift=True)
+        yield 1.0
+    yield from ui.wait_until(lambda: name in bpy.data.objects, 5, "the avatar after the redos")
+    after = _avatar_and_frames()
+    check(after == before, f"{presses} x undo and redo: {after}, before {before}")
+    ui.data["undo_past_load"] = {"presses": presses, "decoded": after["decoded"]}
+
+
 def lod_by_hand(ui):
     avatar = bpy.data.objects[f"{HEAD}_avatar"]
     counts = {}
@@ -295,6 +319,154 @@ def driver_follows_active_camera(ui):
     scene.camera = bpy.data.objects["ui_dolly"]  # as the saved file had it
 
 
+def undo_drive_lod(ui):
+    """Drive LOD again with other distances (its dialog's OK pushes an undo step): Ctrl+Z
+    brings the first driver's back, Ctrl+Shift+Z the new ones."""
+    from archhead_blender.lod_driver import NEAR_PROP
+
+    name = f"{HEAD}_avatar"
+    _select(bpy.data.objects[name])  # the last step left the new camera active
+    ui.op("archhead.drive_lod", undo=True, near=0.6, far=3.1)
+
+    def redriven():  # an undo may go back past the first driver too (it made no undo step)
+        return abs(bpy.data.objects[name].get(NEAR_PROP, 0.0) - 0.6) < 1e-6
+
+    yield from ui_steps.undo_redo(ui, redriven, "Drive LOD's new near distance")
+    avatar = bpy.data.objects[name]
+    check(avatar.animation_data.drivers, "no LOD driver after the redo")
+    _select(avatar)  # undo and redo made new Python objects
+    ui.op("archhead.drive_lod", undo=True, near=0.5, far=3.0)  # as the saved file had it
+
+
+def _select(*objects, active=None):
+    for obj in bpy.context.selected_objects:
+        obj.select_set(False)
+    for obj in objects:
+        obj.select_set(True)
+    bpy.context.view_layer.objects.active = active or objects[0]
+
+
+def _duplicate(ui, objects, linked: bool):
+    """Shift+D (Alt+D) over the 3D view, then Return where the pointer is: the copies stay
+    where the originals are. Returns the copies' names in the order of `objects` (each the
+    copy of the same role: head, rig, avatar)."""
+    before = set(bpy.data.objects.keys())
+    _select(*objects)
+    ui.key("D", shift=not linked, alt=linked)
+    yield from ui.wait_until(lambda: set(bpy.data.objects.keys()) - before, 5, "the copies")
+    yield 0.3
+    ui.key("RET")  # ends the grab that follows a duplicate, without a move
+    yield from ui.wait_until(lambda: not _transforming(ui), 5, "the grab to end")
+    new = {_role(bpy.data.objects[n]): n for n in set(bpy.data.objects.keys()) - before}
+    check(len(new) == len(objects), f"the copies: {sorted(new.values())}")
+    return [new[_role(o)] for o in objects]
+
+
+def _role(obj) -> str:
+    if obj.archhead_avatar.checkpoint:
+        return "avatar"
+    return "head" if "archhead_model_id" in obj else obj.type
+
+
+def _transforming(ui) -> bool:
+    """Whether the grab that follows a duplicate is still running."""
+    running = getattr(ui.window, "modal_operators", ())  # Blender 4.2 and later
+    return any(op.bl_idname.startswith("TRANSFORM") for op in running)
+
+
+def crowd(ui):
+    from archhead_blender.avatar_objects import avatar_of, head_of
+    from archhead_blender.state import STATE
+
+    head = bpy.data.objects[HEAD]
+    names = yield from _duplicate(ui, [head, head.parent], linked=False)
+    head = bpy.data.objects[HEAD]  # after an operator, fresh Python objects
+    copy_head, copy_rig = (bpy.data.objects[n] for n in names)
+    check(head_of(copy_rig) is copy_head, "Shift+D's rig names the original head")
+    check(avatar_of(copy_head) is None, "the head's copy has an avatar before Load Avatar")
+    copy_rig.location.x += 0.5
+    _select(head, copy_head, active=copy_head)
+    yield from ui_steps.file_browser(ui, "archhead.load_avatar", AVATAR)
+    yield from ui.wait_until(lambda: avatar_of(copy_head) is not None, 10, "the copy's avatar")
+    check(len(STATE.decoders) == 1, f"{len(STATE.decoders)} decoders for one checkpoint")
+
+    # Alt+D of the copy's head, rig and avatar: a linked head with points of its own
+    copy_avatar = avatar_of(copy_head)
+    names = yield from _duplicate(ui, [copy_head, copy_rig, copy_avatar], linked=True)
+    head, copy_head, copy_rig = (bpy.data.objects[n] for n in (HEAD, copy_head.name, copy_rig.name))
+    copy_avatar = avatar_of(copy_head)
+    linked = [bpy.data.objects[n] for n in names]
+    linked[1].location.x -= 1.0
+    yield from ui.wait_until(
+        lambda: linked[2].data is not copy_avatar.data and linked[2].data.users == 1,
+        5,
+        "the linked copy's own point mesh",
+    )
+    avatars = [avatar_of(head), copy_avatar, linked[2]]
+    check(len({a.name for a in avatars}) == 3, f"avatars {[a.name for a in avatars]}")
+    for obj in avatars:
+        obj.archhead_avatar.lod = 1.0  # software OpenGL draws LOD 1 fastest
+        obj.archhead_avatar.decode_frames = "STRIDE"
+        obj.archhead_avatar.stride = 8
+    _select(head, copy_head, linked[0], active=head)
+    yield 0.3
+    ui.screenshot("crowd", area_type="VIEW_3D")
+
+    # Decode Frames with the three heads selected: one pass decodes them all
+    ui.op("archhead.decode_avatar", invoke=True)
+    uids = [a.session_uid for a in avatars]
+    yield from ui.wait_until(
+        lambda: not any(u in STATE.decode_progress for u in uids), 15, "the crowd's decode"
+    )
+    names = [a.name for a in avatars]
+
+    def decoded():
+        found = [bpy.data.objects.get(n) for n in names]
+        if None in found:
+            return None
+        return [sorted(ui_steps.avatar_session(a).decoded) for a in found]
+
+    kept = yield from ui_steps.undo_redo_keeps(ui, decoded, "the crowd's Decode Frames")
+    scene = bpy.context.scene
+    want = list(range(scene.frame_start, scene.frame_end + 1, 8))
+    check(kept == [want] * 3, f"decoded {kept}, want {want} for each avatar")
+
+    # the scene's settings for all of them: LOD bias (drivers) and the Gaussian budget
+    avatars = [bpy.data.objects[n] for n in names]
+    scene.frame_set(scene.frame_start)  # the dolly 3.5 m away: the driven avatar at LOD 1
+    base = ui_steps.evaluated_lod(avatars[0])
+    scene.archhead_crowd.lod_bias = -0.5
+    biased = ui_steps.evaluated_lod(avatars[0])
+    scene.archhead_crowd.lod_bias = 0.0
+    # the dolly 3.5 m from the head's centre, a little more from its root bone: about 1.2
+    # before the clamp, 0.7 after the bias
+    ok = base > 0.99 and 0.65 < biased < 0.8
+    check(ok, f"LOD {base:.3f}, biased by -0.5: {biased:.3f}")
+    for obj in avatars:
+        obj.archhead_avatar.lod = 0.0
+    yield from ui.wait_until(
+        lambda: all(ui_steps.shows_lod(a, ui_steps.evaluated_lod(a)) for a in avatars),
+        10,
+        "the avatars at their levels",
+    )
+    free = sum(len(a.data.vertices) for a in avatars)
+    scene.archhead_crowd.gaussian_budget = budget = free // 2
+    yield from ui.wait_until(
+        lambda: sum(len(a.data.vertices) for a in avatars) <= budget, 10, "the budget"
+    )
+    ui.screenshot("crowd_budget", area_type="VIEW_3D")
+    ui.data["crowd"] = {
+        "gaussians_free": free,
+        "gaussians_budgeted": sum(len(a.data.vertices) for a in avatars),
+        "decoded_frames": kept[0],
+    }
+    scene.archhead_crowd.gaussian_budget = 0
+    avatar_of(head).archhead_avatar.decode_frames = "ALL"
+    for obj in [copy_head, copy_rig, *linked, bpy.data.objects[names[1]]]:  # as before
+        bpy.data.objects.remove(obj)
+    _select(head, head.parent, active=head.parent)
+
+
 def save(ui):
     with ui.context(None):
         bpy.ops.wm.save_as_mainfile(filepath=str(BLEND))
@@ -313,9 +485,12 @@ run_steps(
         ("modal Decode, cancelled half way", decode_cancel),
         ("undo and redo a cancelled Decode", undo_decode_cancelled),
         ("Decode Frames, then undo and redo", decode_and_undo),
+        ("undo past Load Avatar, redo: the decoded frames stay", undo_past_load),
         ("LOD by hand", lod_by_hand),
         ("LOD driver during playback", lod_driver_playback),
         ("LOD driver follows the camera made active", driver_follows_active_camera),
+        ("undo and redo Drive LOD", undo_drive_lod),
+        ("a crowd: duplicates, Load and Decode on all, undo, bias and budget", crowd),
         ("save", save),
     ]
 )

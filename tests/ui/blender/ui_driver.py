@@ -125,15 +125,22 @@ class UI:
             yield bpy.context
 
     # -- acting --------------------------------------------------------------------------------
-    def op(self, idname: str, invoke: bool = False, area_type="VIEW_3D", window=None, **props):
-        """Run an operator the way a button would (INVOKE_DEFAULT with `invoke`)."""
+    def op(
+        self,
+        idname: str,
+        invoke: bool = False,
+        area_type="VIEW_3D",
+        window=None,
+        undo: bool = False,
+        **props,
+    ):
+        """Run an operator the way a button would (INVOKE_DEFAULT with `invoke`; `undo`
+        pushes its undo step, as a button or a dialog's OK does)."""
         module, name = idname.split(".")
         operator = getattr(getattr(bpy.ops, module), name)
         with self.context(area_type, window):
             check(operator.poll(), f"{idname} is not available here (poll failed)")
-            if invoke:
-                return operator("INVOKE_DEFAULT", **props)
-            return operator(**props)
+            return operator("INVOKE_DEFAULT" if invoke else "EXEC_DEFAULT", undo, **props)
 
     def redraw(self) -> None:
         """Draw the window now (what a screenshot then shows is current)."""

@@ -91,7 +91,7 @@ def shows_lod(obj, lod: float) -> bool:
         return False
     depsgraph = bpy.context.evaluated_depsgraph_get()
     codes = frame_codes(obj.archhead_avatar.head, depsgraph, current.joint_dirs)
-    return current.shown[0] == current.key(codes, lod)
+    return current.shown[0] == current.shared.key(codes, lod)
 
 
 def head_centre(head):
