@@ -203,7 +203,11 @@ def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
         avatar=str(avatar),
         elapsed_seconds=round(trainer.elapsed, 1),
     )
-    progress.message(f"{kind} at step {trainer.step}/{total}; avatar {avatar}")
+    minutes = trainer.elapsed / 60
+    progress.message(
+        f"{kind} at step {trainer.step}/{total} after {minutes:.1f} min of training; "
+        f"avatar {avatar}"
+    )
     return 0 if finished else INTERRUPTED
 
 
