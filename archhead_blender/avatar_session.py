@@ -90,11 +90,20 @@ class SharedDecoder:
         self.memory = MemoryCache(0)
         self.disk = _disk_cache(settings)
         self.budgets: dict[int, int] = {}  # user's session_uid -> its memory budget, bytes
+        self.texel_counts: dict[int, int] = {}  # UV resolution -> texels (the scene budget)
+
+    def texels(self, size: int) -> int:
+        """The avatar's texels at UV resolution `size` (its Gaussians before opacity and
+        culling), counted once per size."""
+        count = self.texel_counts.get(size)
+        if count is None:
+            count = self.texel_counts[size] = len(self.runtime.raster.table(size).texel)
+        return count
 
     def texels_at_ends(self) -> tuple[int, int]:
-        """The avatar's texels at LOD 0 and LOD 1: its Gaussians before opacity and culling."""
-        cfg, raster = self.runtime.config, self.runtime.raster
-        return len(raster.table(cfg.s_max).texel), len(raster.table(cfg.s_min).texel)
+        """texels() at LOD 0 and at LOD 1."""
+        cfg = self.runtime.config
+        return self.texels(cfg.s_max), self.texels(cfg.s_min)
 
     def use(self, uid: int, memory_mb: int) -> None:
         """Count an avatar among the users: the memory cache holds the sum of their budgets

@@ -7,8 +7,9 @@ with b the smallest that fits: far heads, already coarse, reach LOD 1 first, and
 ones keep what detail the budget allows. A level's count is its texels, which grow as the
 UV area (S^2) plus the charts' edges (S): n(S) = a S^2 + b S through the counts at S_max and
 S_min, exact there (the demo avatar's texels at S = 128 / 80 / 32: 15,063 / 5,862 / 969;
-the fit's 15,063 / 5,918 / 969). Opacity and culling leave some out, so what is drawn stays
-under the budget. When even LOD 1 everywhere does not fit, every avatar shows LOD 1.
+the fit's 15,063 / 5,918 / 969); the b it gives is then raised a resolution step at a time
+until the true counts fit, so what is drawn (opacity and culling leave some out) stays under
+the budget. When even LOD 1 everywhere does not fit, every avatar shows LOD 1.
 """
 
 from __future__ import annotations
@@ -68,7 +69,20 @@ def budgeted_lods(scene, depsgraph, objs) -> dict[int, float]:
         uids.append(obj.session_uid)
     budget = scene_budget(scene)
     b = budget_bias(wanted, sizes, budget) if budget else 0.0
+    if 0.0 < b < 1.0:  # the fit found b; the true counts (cached per S) have the last word
+        counters = [session(o).shared.texels for o in objs if session(o).lod_override is None]
+        step = 1.0 / max(max(s[1] - s[2] for s in sizes), 1)  # one UV resolution
+        while b < 1.0 and exact_total(wanted, sizes, counters, b) > budget:
+            b = min(b + step, 1.0)
     return {**fixed, **{u: min(l + b, 1.0) for u, l in zip(uids, wanted, strict=True)}}
+
+
+def exact_total(wanted, sizes, counters, b: float) -> int:
+    """The texels of every avatar at its level plus b, counted at its UV resolution."""
+    return sum(
+        count(resolution_for_lod(min(l + b, 1.0), s[1], s[2])[1])
+        for l, s, count in zip(wanted, sizes, counters, strict=True)
+    )
 
 
 def scene_budget(scene) -> int:
