@@ -404,6 +404,7 @@ def crowd(ui):
     )
     avatars = [avatar_of(head), copy_avatar, linked[2]]
     check(len({a.name for a in avatars}) == 3, f"avatars {[a.name for a in avatars]}")
+    copies = [copy_head.name, copy_rig.name, linked[0].name, linked[1].name]  # heads and rigs
     for obj in avatars:
         obj.archhead_avatar.lod = 1.0  # software OpenGL draws LOD 1 fastest
         obj.archhead_avatar.decode_frames = "STRIDE"
@@ -461,9 +462,10 @@ def crowd(ui):
         "decoded_frames": kept[0],
     }
     scene.archhead_crowd.gaussian_budget = 0
+    head = bpy.data.objects[HEAD]  # the undo and redo made new Python objects
     avatar_of(head).archhead_avatar.decode_frames = "ALL"
-    for obj in [copy_head, copy_rig, *linked, bpy.data.objects[names[1]]]:  # as before
-        bpy.data.objects.remove(obj)
+    for name in [*copies, *names[1:]]:  # the scene as it was before the crowd
+        bpy.data.objects.remove(bpy.data.objects[name])
     _select(head, head.parent, active=head.parent)
 
 
