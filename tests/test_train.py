@@ -1,5 +1,7 @@
 """Training end to end on a tiny synthetic subject: the loss falls, the checkpoint decodes and
-renders in the numpy runtime; the two stages; exact resume; the config file and CLI errors."""
+renders in the numpy runtime; the two stages; exact resume; the config file and CLI errors;
+the per-frame refinement of the tracked codes (lr.codes, train/refine.py), its exact resume
+and the refined tracking that `evaluate` scores training frames with."""
 
 import json
 
@@ -10,13 +12,18 @@ from synthetic_models import random_model
 from training_subject import TINY_CONFIG, write_config
 
 from archhead_addon.avatar.runtime import AvatarRuntime
+from archhead_addon.evaluate.__main__ import main as evaluate_main
 from archhead_addon.evaluate.render import render_frame
 from archhead_addon.flame.model import load_model
+from archhead_addon.sequences import read_sequence
 from archhead_addon.train.__main__ import main
 from archhead_addon.train.config import TrainConfig
 from archhead_addon.train.dataset import FrameDataset
 from archhead_addon.train.loop import Trainer, frames_on_device, load_state
+from archhead_addon.train.refine import REFINED
 from archhead_addon.train.run_folder import RunFolder
+
+CODES_LR = 0.01  # lr.codes of the refinement tests
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +47,7 @@ def trainer(dataset, model, out, **changes) -> Trainer:
         out,
         dataset.background,
         torch.device("cpu"),
+        sequence=dataset.sequence,
     )
 
 
@@ -242,3 +250,63 @@ def test_cli_holdout_is_kept_in_the_run_s_config(tiny_subject, tmp_path, capsys)
     events = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     start = next(e for e in events if e["event"] == "start")
     assert start["frames"] == 7
+
+
+def test_refinement_trains_resumes_exactly_and_writes_the_refined_tracking(
+    dataset, model, tmp_path
+):
+    changes = {"stage1_steps": 4, "stage2_steps": 2, "checkpoint_every": 100}
+    changes["lr"] = {**TINY_CONFIG["lr"], "codes": CODES_LR}
+    straight = trainer(dataset, model, tmp_path / "a", **changes)
+    for _ in range(6):
+        straight.train_step()
+    moved = straight.refinement.mean_size()
+    assert set(moved) == set(REFINED) and all(v > 0 for v in moved.values())
+
+    first = trainer(dataset, model, tmp_path / "b", **changes)
+    for _ in range(4):
+        first.train_step()
+    first.save()
+    state = load_state(RunFolder(tmp_path / "b").state)
+    assert set(state["refinement"]) == set(REFINED)
+    frames = frames_on_device(dataset, torch.device("cpu"))
+    resumed = Trainer.resume(
+        state, tmp_path / "b", frames, model, dataset.background, torch.device("cpu"),
+        sequence=dataset.sequence,
+    )  # fmt: skip
+    resumed.train_step()
+    resumed.train_step()
+    for k, v in straight.refinement.state().items():
+        assert torch.equal(v, resumed.refinement.state()[k]), k
+    for (name, a), b in zip(
+        straight.avatar.state_dict().items(), resumed.avatar.state_dict().values(), strict=True
+    ):
+        assert torch.equal(a, b), name
+
+    resumed.save()
+    refined = read_sequence(RunFolder(tmp_path / "b").tracking)
+    tracked = dataset.sequence
+    shown = [frames[resumed.frame_index(step)].index for step in range(6)]
+    held_out = sorted(set(range(len(tracked))) - {f.index for f in frames})
+    assert held_out, "the tiny subject holds frames out"
+    for k in REFINED:
+        delta = np.abs(getattr(refined, k) - getattr(tracked, k)).sum(axis=1)
+        assert (delta[shown] > 0).all(), k  # every frame a step rendered moved
+        assert (delta[held_out] == 0).all(), k  # held-out frames stay as tracked
+
+
+def test_a_refined_run_is_scored_with_its_refined_codes(tiny_subject, tmp_path, capsys):
+    config = write_config(
+        tmp_path / "c.json",
+        stage1_steps=6,
+        stage2_steps=2,
+        lr={**TINY_CONFIG["lr"], "codes": CODES_LR},
+    )
+    run = tmp_path / "run"
+    args = ["--data", str(tiny_subject), "--out", str(run), "--config", str(config)]
+    assert main(args) == 0
+    assert RunFolder(run).tracking.is_file()
+    out = tmp_path / "eval"
+    args = ["--avatar", str(run / "avatar.npz"), "--data", str(tiny_subject), "--out", str(out)]
+    assert evaluate_main([*args, "--split", "train", "--lods", "0", "--precisions", "fp32"]) == 0
+    assert "the run's refined tracking (tracking_refined.npz)" in capsys.readouterr().err
