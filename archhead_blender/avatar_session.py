@@ -75,8 +75,9 @@ class SharedDecoder:
     crowd of heads that use one checkpoint decodes through one of these; per avatar remain
     only its codes, level of detail and object (AvatarSession)."""
 
-    def __init__(self, source: tuple, settings):
-        path = Path(source[0])
+    def __init__(self, key: tuple, settings):
+        """`key`: its `decoder_key` (the checkpoint's path and digest first)."""
+        path = Path(key[0])
         ckpt = read_checkpoint(path)
         if settings.identity == "HEAD" and settings.head is not None:
             ckpt = replace(ckpt, **head_identity(settings.head))
@@ -86,7 +87,7 @@ class SharedDecoder:
         # alone (the others are neither decoded nor cached).
         self.sh_degree = ckpt.config.sh_degree if settings.view_dependent else 0
         self.joint_dirs = expression_joint_dirs(self.runtime.mesh, self.runtime.mesh.n_expr)
-        self.digest = source[1]
+        self.digest = key[1]
         self.memory = MemoryCache(0)
         self.disk = _disk_cache(settings)
         self.budgets: dict[int, int] = {}  # user's session_uid -> its memory budget, bytes
