@@ -69,7 +69,7 @@ def budgeted_lods(scene, depsgraph, objs) -> dict[int, float]:
         uids.append(obj.session_uid)
     budget = scene_budget(scene)
     b = budget_bias(wanted, sizes, budget) if budget else 0.0
-    if 0.0 < b < 1.0:  # the fit found b; the true counts (cached per S) have the last word
+    if budget and b < 1.0:  # the fit found b; the true counts (cached per S) have the last word
         counters = [session(o).shared.texels for o in objs if session(o).lod_override is None]
         step = 1.0 / max(max(s[1] - s[2] for s in sizes), 1)  # one UV resolution
         while b < 1.0 and exact_total(wanted, sizes, counters, b) > budget:
