@@ -759,6 +759,277 @@ def ply_mutations(data: bytes, rng) -> list[tuple[str, bytes]]:
     return out
 
 
+# ------------------------------------------------------------------------- more cases
+# Cases added for issue 33's aim of at least 150 files per reader. Each draws from its own
+# generator (SEED + an offset), so the cases above keep the files they always had.
+
+
+def more_byte_mutations(data: bytes, seed: int) -> list[tuple[str, bytes]]:
+    """Byte damage byte_mutations does not make: truncation at fixed points (the last byte,
+    the first 8 bytes, halfway), bytes deleted or inserted (every offset after them shifts),
+    runs of 0xff, and single bit flips from a second generator."""
+    rng = np.random.default_rng(SEED + seed)
+    out = [
+        ("truncated by the last byte", data[:-1]),
+        ("truncated to 8 bytes", data[:8]),
+        ("truncated halfway", data[: len(data) // 2]),
+    ]
+    for i in range(3):
+        at = int(rng.integers(len(data)))
+        out.append((f"byte {i} deleted", data[:at] + data[at + 1 :]))
+    for i in range(2):
+        at = int(rng.integers(len(data)))
+        out.append((f"byte {i} inserted", data[:at] + bytes([int(rng.integers(256))]) + data[at:]))
+    for i in range(2):
+        b = bytearray(data)
+        at = int(rng.integers(len(b)))
+        b[at : at + 32] = b"\xff" * len(b[at : at + 32])
+        out.append((f"0xff run {i}", bytes(b)))
+    for i in range(3):
+        b = bytearray(data)
+        at = int(rng.integers(len(b)))
+        b[at] ^= 1 << int(rng.integers(8))
+        out.append((f"single bit flip {i}", bytes(b)))
+    return out
+
+
+def _cache_more_cases(arrays: dict) -> list[tuple[str, bytes]]:
+    """Cache frames whose checksum matches what they hold, each with one key missing or of a
+    type, shape or value read_frame refuses: only its own checks can catch them."""
+    from archhead_addon.io.checksum import KEY, with_checksum
+
+    plain = {k: v for k, v in arrays.items() if k != KEY}
+    n = len(plain["means"])
+    nan, inf = plain["opacity_logits"].copy(), plain["log_scales"].copy()
+    nan[3], inf[5, 1] = np.nan, np.inf
+    cases = [(f"{k} dropped", {kk: v for kk, v in plain.items() if kk != k}) for k in plain]
+    cases += [
+        ("means float64", {**plain, "means": plain["means"].astype(np.float64)}),
+        ("sh of 5 bands", {**plain, "sh": np.zeros((n, 5, 3), F32)}),
+        ("quats one row short", {**plain, "quats": plain["quats"][:-1]}),
+        ("opacity_logits NaN", {**plain, "opacity_logits": nan}),
+        ("log_scales Inf", {**plain, "log_scales": inf}),
+        ("resolution float", {**plain, "resolution": np.float64(64)}),
+        ("resolution shape (1,)", {**plain, "resolution": np.array([64])}),
+    ]
+    return [(f"{label} with a valid checksum", npz_bytes(with_checksum(a))) for label, a in cases]
+
+
+def _clip_cases(clip: dict) -> list[tuple[str, dict]]:
+    """Driving clips whose parts disagree or hold what no clip has (both containers)."""
+    exp, jaw = clip["exp"], clip["jaw"]
+    return [
+        ("jaw one frame short", {**clip, "jaw": jaw[:-1]}),
+        ("jaw (T, 4)", {**clip, "jaw": np.zeros((5, 4), F32)}),
+        ("no frames", {**clip, "exp": exp[:0], "jaw": jaw[:0]}),
+        ("exp one-dimensional", {**clip, "exp": exp[0]}),
+        ("fps 0", {**clip, "fps": 0.0}),
+        ("fps negative", {**clip, "fps": -30.0}),
+        ("fps 1e9", {**clip, "fps": 1e9}),
+        ("fps of two values", {**clip, "fps": np.array([30.0, 25.0])}),
+        ("exp float16", {**clip, "exp": exp.astype(np.float16)}),
+        ("exp big-endian", {**clip, "exp": exp.astype(">f4")}),
+        ("exp Fortran order", {**clip, "exp": np.asfortranarray(exp)}),
+        ("exp renamed expr", {**{k: v for k, v in clip.items() if k != "exp"}, "expr": exp}),
+        ("unknown extra key", {**clip, "zzz": np.zeros(2)}),
+    ]
+
+
+def _clip_npz_cases(clip: dict) -> list[tuple[str, bytes]]:
+    """Archives numpy writes differently or not at all: members without the .npy suffix or
+    in a folder, no members, a bare .npy, a zip of text, npy format 2.0 and 3.0 headers."""
+    import io
+
+    def archive(members):
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w") as z:
+            for name, data in members:
+                z.writestr(name, data)
+        return buf.getvalue()
+
+    def npy(v, version=None):
+        buf = io.BytesIO()
+        np.lib.format.write_array(buf, np.asanyarray(v), version=version)
+        return buf.getvalue()
+
+    out = [(label, npz_bytes({**c, "fps": np.asarray(c["fps"], np.float64)}))
+           for label, c in _clip_cases(clip)]  # fmt: skip
+    out += [
+        ("exp member without .npy", archive([(("exp" if k == "exp" else f"{k}.npy"), npy(v))
+                                              for k, v in clip.items()])),
+        ("members in a folder", archive([(f"clip/{k}.npy", npy(v)) for k, v in clip.items()])),
+        ("no members", archive([])),
+        ("a bare .npy of exp", npy(clip["exp"])),
+        ("exp member of text", archive([(f"{k}.npy", b"exp,jaw\n1,2\n" if k == "exp" else npy(v))
+                                        for k, v in clip.items()])),
+        ("npy format 2.0", archive([(f"{k}.npy", npy(v, (2, 0))) for k, v in clip.items()])),
+        ("npy format 3.0", archive([(f"{k}.npy", npy(v, (3, 0))) for k, v in clip.items()])),
+    ]  # fmt: skip
+    return out
+
+
+def _clip_pickle_cases(clip: dict) -> list[tuple[str, bytes]]:
+    """Pickled clips of another shape: not a dict, Python lists (ragged too), the clip
+    nested one level down, other protocols (4 with frames, 0 as text), two pickles in one."""
+    exp = clip["exp"]
+    ragged = [row.tolist()[: 5 - i % 2] for i, row in enumerate(exp)]  # rows of 5 and 4
+    objects = [
+        ("a list, not a dict", [clip["exp"], clip["jaw"], clip["fps"]]),
+        ("a tuple, not a dict", (clip["exp"], clip["jaw"], clip["fps"])),
+        ("None", None),
+        ("a string", "exp jaw fps"),
+        ("clip nested under a key", {"clip": clip}),
+        ("exp as nested lists", {**clip, "exp": exp.tolist()}),
+        ("exp as ragged lists", {**clip, "exp": ragged}),
+        ("fps as text", {**clip, "fps": "30"}),
+        ("fps as int", {**clip, "fps": 30}),
+    ]
+    out = [(label, fast_pickle(obj)) for label, obj in objects]
+    out += [(label, fast_pickle(c)) for label, c in _clip_cases(clip)]
+    proto4 = pickle.dumps(clip, protocol=4)
+    out += [
+        ("protocol 4 (framed)", proto4),
+        ("protocol 4 truncated inside a frame", proto4[: len(proto4) // 3]),
+        ("protocol 0 (text)", pickle.dumps({k: np.asarray(v).tolist() for k, v in clip.items()},
+                                           protocol=0)),
+        ("two pickles in one file", fast_pickle(clip) + fast_pickle({"exp": None})),
+    ]  # fmt: skip
+    return out
+
+
+def ply_more_mutations(data: bytes) -> list[tuple[str, bytes]]:
+    """Header variants: vertex counts off by one or more than the body holds, properties
+    missing or of other types (the body then misread), ascii or big-endian bodies under
+    their own or the other format line, CRLF, comments, other elements."""
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header, body = data[:end].decode(), data[end:]
+    lines = header.splitlines()
+
+    def without(name):
+        return "\n".join(x for x in lines if x != f"property float {name}") + "\n"
+
+    out = []
+    for label, old, new in (
+        ("count one fewer", "element vertex 20", "element vertex 19"),
+        ("count one more", "element vertex 20", "element vertex 21"),
+        ("count doubled", "element vertex 20", "element vertex 40"),
+        ("count 0", "element vertex 20", "element vertex 0"),
+        ("count zero-padded", "element vertex 20", "element vertex 020"),
+        ("count float", "element vertex 20", "element vertex 20.0"),
+        ("count exponent", "element vertex 20", "element vertex 2e1"),
+        ("count with a sign", "element vertex 20", "element vertex +20"),
+        ("count with an extra token", "element vertex 20", "element vertex 20 3"),
+        ("x uchar", "property float x\n", "property uchar x\n"),
+        ("x int", "property float x\n", "property int x\n"),
+        ("opacity short", "property float opacity", "property short opacity"),
+        ("rot_0 double", "property float rot_0", "property double rot_0"),
+        ("scale_0 uint", "property float scale_0", "property uint scale_0"),
+        ("x float32", "property float x\n", "property float32 x\n"),
+        ("property with an extra token", "property float y", "property float y z2"),
+        ("property without a name", "property float z\n", "property float\n"),
+        ("format version 2.0", "binary_little_endian 1.0", "binary_little_endian 2.0"),
+        ("format line dropped", "format binary_little_endian 1.0\n", ""),
+        ("magic PLY", "ply\n", "PLY\n"),
+        ("face element first", "element vertex 20", "element face 3\nelement vertex 20"),
+        ("CRLF line ends", "\n", "\r\n"),
+        ("comments", "element vertex 20", "comment made by hand\nelement vertex 20\nobj_info x"),
+    ):
+        out.append((f"header {label}", header.replace(old, new).encode() + body))
+    for name in ("x", "scale_2", "opacity", "f_dc_1", "rot_3", "f_rest_44"):
+        out.append((f"header without property {name}", without(name).encode() + body))
+    table = np.frombuffer(body, F32).reshape(20, -1)
+    text = "\n".join(" ".join(f"{v:.6g}" for v in row) for row in table) + "\n"
+    ascii_header = header.replace("binary_little_endian", "ascii")
+    out += [
+        ("ascii body under an ascii header", (ascii_header + text).encode()),
+        ("ascii body under a binary header", (header + text).encode()),
+        ("big-endian body under a big-endian header",
+         header.replace("little", "big").encode() + table.astype(">f4").tobytes()),
+        ("big-endian body under a little-endian header",
+         header.encode() + table.astype(">f4").tobytes()),
+        ("face element after the vertices",
+         header.replace("end_header", "element face 1\nproperty list uchar int vertex_indices\n"
+                        "end_header").encode() + body + b"\x03" + bytes(12)),
+        ("trailing bytes after the body", header.encode() + body + bytes(100)),
+        ("header alone", header.encode()),
+        ("header of 70,000 comment lines",
+         header.replace("ply\n", "ply\n" + "comment x\n" * 70_000).encode() + body),
+        ("quaternions of 1e-30", header.encode() + _scaled_quats(table, 1e-30)),
+        ("all-zero vertex", header.encode() + _zero_row(table, 7)),
+    ]  # fmt: skip
+    return out
+
+
+def _scaled_quats(table: np.ndarray, factor: float) -> bytes:
+    t = table.copy()
+    t[:, -4:] *= factor
+    return t.astype(F32).tobytes()
+
+
+def _zero_row(table: np.ndarray, row: int) -> bytes:
+    t = table.copy()
+    t[row] = 0
+    return t.tobytes()
+
+
+def _vhap_more_cases(transforms: dict) -> list[tuple[str, str, bytes]]:
+    """transforms.json variants: frames of the wrong kind, transform matrices of the wrong
+    shape or content, flame_param paths that lead nowhere or out of the folder, cameras and
+    timesteps that do not line up, per-frame intrinsics that disagree, other encodings."""
+    import copy
+
+    def changed(change):
+        t = copy.deepcopy(transforms)
+        change(t)
+        return json.dumps(t).encode()
+
+    def frame(key, value, i=1):
+        return changed(lambda t: t["frames"][i].update({key: value}))
+
+    eye = np.eye(4).tolist()
+    good = json.dumps(transforms)
+    cases = [
+        ("frames empty", changed(lambda t: t.update(frames=[]))),
+        ("frames an object", changed(lambda t: t.update(frames={"0": t["frames"][0]}))),
+        ("frames of numbers", changed(lambda t: t.update(frames=[1, 2]))),
+        ("top-level list", json.dumps(transforms["frames"]).encode()),
+        ("transform_matrix dropped", changed(lambda t: t["frames"][1].pop("transform_matrix"))),
+        ("transform_matrix 3x4", frame("transform_matrix", eye[:3])),
+        ("transform_matrix 3x3", frame("transform_matrix", [r[:3] for r in eye[:3]])),
+        ("transform_matrix ragged", frame("transform_matrix", [*eye[:3], [0, 0, 1]])),
+        ("transform_matrix of text", frame("transform_matrix", [["1"] * 4] * 4)),
+        ("transform_matrix with NaN", frame("transform_matrix", [[math.nan] * 4, *eye[1:]])),
+        ("transform_matrix last row not 0 0 0 1",
+         frame("transform_matrix", [*eye[:3], [1, 0, 0, 1]])),
+        ("transform_matrix scaled by 1e6", frame("transform_matrix", (np.eye(4) * 1e6).tolist())),
+        ("flame_param_path ../", frame("flame_param_path", "../00001.npz")),
+        ("flame_param_path absolute", frame("flame_param_path", "/etc/hostname")),
+        ("flame_param_path empty", frame("flame_param_path", "")),
+        ("flame_param_path a folder", frame("flame_param_path", "flame_param")),
+        ("flame_param_path missing file", frame("flame_param_path", "flame_param/00009.npz")),
+        ("flame_param_path NUL byte", frame("flame_param_path", "flame_param/0\x00.npz")),
+        ("flame_param_path 5000 characters", frame("flame_param_path", "a/" * 2500)),
+        ("flame_param_path a number", frame("flame_param_path", 1)),
+        ("both frames one flame_param", frame("flame_param_path", "flame_param/00000.npz")),
+        ("timestep_index repeated", frame("timestep_index", 0)),
+        ("timestep_index dropped", changed(lambda t: t["frames"][1].pop("timestep_index"))),
+        ("timestep_index 2^62", frame("timestep_index", 1 << 62)),
+        ("camera_index 1 for one frame", frame("camera_index", 1)),
+        ("camera_index 1.5", frame("camera_index", 1.5)),
+        ("per-frame w differs", frame("w", 512)),
+        ("per-frame fl_x", frame("fl_x", 600.0)),
+        ("per-frame fl_y 0", frame("fl_y", 0)),
+        ("h 0", changed(lambda t: t.update(h=0))),
+        ("cx text", changed(lambda t: t.update(cx="128"))),
+        ("intrinsics dropped", changed(lambda t: [t.pop(k) for k in ("fl_x", "fl_y")])),
+        ("UTF-8 byte order mark", b"\xef\xbb\xbf" + good.encode()),
+        ("UTF-16", good.encode("utf-16")),
+        ("trailing garbage", good.encode() + b" }"),
+        ("two objects", (good + good).encode()),
+    ]  # fmt: skip
+    return [(label, "transforms.json", data) for label, data in cases]
+
+
 # ------------------------------------------------------------------------- readers
 
 
@@ -824,13 +1095,15 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
         path.write_bytes(data)
         items.append((reader, label, path))
 
-    def family(reader, name, seed, mutations):
+    def family(reader, name, seed, mutations, extra=()):
+        """`extra`: cases added later (issue 33), after the rounds, which are counted on
+        `mutations` alone so that every earlier file stays as it was."""
         add(reader, "seed", seed, name)
         for round_ in range(2, 4):  # more byte damage for readers with few structured cases
             if len(mutations) < 110:
                 more = byte_mutations(seed, rng)[1:]
                 mutations = mutations + [(f"{label} (round {round_})", d) for label, d in more]
-        for label, data in mutations:
+        for label, data in [*mutations, *extra]:
             add(reader, label, data, name)
 
     flame = _flame_arrays()
@@ -862,11 +1135,13 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
     clip = _clip()
     npz_clip = {**clip, "fps": np.float64(clip["fps"])}
     family("driving clip npz", "c.npz", npz_bytes(npz_clip),
-           npz_mutations(npz_clip, rng) + byte_mutations(npz_bytes(npz_clip), rng))  # fmt: skip
+           npz_mutations(npz_clip, rng) + byte_mutations(npz_bytes(npz_clip), rng),
+           _clip_npz_cases(clip) + more_byte_mutations(npz_bytes(npz_clip), 1))  # fmt: skip
     family("driving clip pkl", "c.pkl", fast_pickle(clip),
            [(lbl, fast_pickle(d)) for lbl, d in value_mutations(clip, rng)]
            + pickle_mutations(clip, rng, marker, splice_pickle)
-           + byte_mutations(fast_pickle(clip), rng))  # fmt: skip
+           + byte_mutations(fast_pickle(clip), rng),
+           _clip_pickle_cases(clip) + more_byte_mutations(fast_pickle(clip), 2))  # fmt: skip
     family("driving clip .pt", "c.pt", torch_bytes(clip),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(clip, rng)]
            + pickle_mutations(clip, rng, marker, splice_torch)
@@ -884,7 +1159,8 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
         cache_arrays = {k: z[k] for k in z.files}
     family("decode cache", "0123abcd.npz", cache,
            npz_mutations(cache_arrays, rng) + byte_mutations(cache, rng)
-           + _cache_cases(cache_arrays))  # fmt: skip
+           + _cache_cases(cache_arrays),
+           _cache_more_cases(cache_arrays) + more_byte_mutations(cache, 3))  # fmt: skip
     config = _train_config()
     text = json.dumps(config).encode()
     tiny_tau = json.dumps({**config, "avatar": {**config["avatar"], "tau": 1e-300}}).encode()
@@ -900,7 +1176,9 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
            + zip_mutations(torch_bytes(state_np)) + torch_size_bombs(torch_bytes(state_np))
            + byte_mutations(torch_bytes(state_np), rng))  # fmt: skip
     ply = _ply_bytes()
-    family("PLY", "a.ply", ply, ply_mutations(ply, rng) + byte_mutations(ply, rng))
+    family("PLY", "a.ply", ply,
+           ply_mutations(ply, rng) + byte_mutations(ply, rng),
+           ply_more_mutations(ply) + more_byte_mutations(ply, 4))  # fmt: skip
     return items
 
 
@@ -984,7 +1262,8 @@ def _vhap_folders(root: Path, items: list, rng) -> None:
     good = npz_bytes(params)
     variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in npz_mutations(params, rng)[::2]]
     variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in byte_mutations(good, rng)[::2]]
-    variants += _vhap_cases(transforms, params)
+    variants += _vhap_cases(transforms, params) + _vhap_more_cases(transforms)
+    variants += [(lbl, "transforms.json", d) for lbl, d in more_byte_mutations(good_json, 5)]
     for label, target, data in variants:
         folder = root / f"{len(items):05d}" / "vhap"
         (folder / "flame_param").mkdir(parents=True)

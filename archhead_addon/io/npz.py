@@ -31,11 +31,15 @@ def read_npz(
     """Every array of the npz at `path` by key; InputError on anything malformed (`what`
     names the file's kind when it is no zip archive at all)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, None, "file not found")
-    with open(path, "rb") as f:
-        if f.read(6) == b"\x93NUMPY":
-            raise InputError(path, None, "a single .npy array, not an npz archive")
+    try:
+        if not path.is_file():
+            raise InputError(path, None, "file not found")
+        with open(path, "rb") as f:
+            magic = f.read(6)
+    except OSError as exc:  # a name too long for the system, no permission
+        raise InputError(path, None, f"unreadable ({exc.strerror or exc})") from exc
+    if magic == b"\x93NUMPY":
+        raise InputError(path, None, "a single .npy array, not an npz archive")
     with open_checked(path, max_bytes, what) as archive:
         return {
             info.filename[: -len(".npy")]: _member(archive, info, path)

@@ -18,7 +18,10 @@ def numeric(value, path, key) -> np.ndarray:
     if isinstance(value, list | tuple):
         _count_items(value, path, key)
     if isinstance(value, bool | int | float | np.number | np.bool_ | list | tuple):
-        value = np.asarray(value)
+        try:
+            value = np.asarray(value)
+        except ValueError as exc:  # ragged lists: rows of different lengths
+            raise InputError(path, key, "nested lists of unequal lengths, not an array") from exc
     if not isinstance(value, np.ndarray) or value.dtype.kind not in "biuf":
         kind = value.dtype if isinstance(value, np.ndarray) else type(value).__name__
         raise InputError(path, key, f"not a real numeric array ({kind})")

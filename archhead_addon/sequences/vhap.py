@@ -184,7 +184,13 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
         rel = frame.get("flame_param_path")
         if not isinstance(rel, str):
             raise InputError(file, f"frames[{i}].flame_param_path", "missing")
-        if not (folder / rel).resolve().is_relative_to(folder.resolve()):
+        try:
+            inside = (folder / rel).resolve().is_relative_to(folder.resolve())
+        except (OSError, ValueError) as exc:  # a NUL byte, a name too long for the system
+            raise InputError(
+                file, f"frames[{i}].flame_param_path", f"not a usable path ({exc!s:.80})"
+            ) from exc
+        if not inside:
             raise InputError(file, f"frames[{i}].flame_param_path", "outside the sequence folder")
         rows.append(_rows(load_npz(folder / rel), folder / rel, frame=t, single=True))
         values = {}
