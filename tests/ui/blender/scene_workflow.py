@@ -1,12 +1,12 @@
 """An artist's first session: File > Import through the file browser, the panel, Load Avatar
 (a failed one first: the scene stays as it was), undo and redo of both, a failed Replace
 Checkpoint, a modal Decode cancelled half way, Ctrl+Z / Ctrl+Shift+Z after it and after a
-finished Decode (the avatar and its decoded frames stay), undo past Load Avatar and redo
-(the decoded frames come back with it), LOD by hand and by the
-camera-distance driver while the camera moves and the timeline plays, and from another
-camera made active during playback, undo and redo of Drive LOD; then a crowd: Shift+D of a
-head, Load Avatar on both heads at once, Alt+D of an avatar's head, Decode Frames of all
-three in one pass with undo and redo, the scene's LOD bias and Gaussian budget; save.
+finished Decode (the avatar and its decoded frames stay), undo past Load Avatar and redo (the
+decoded frames come back with it), LOD by hand and by the camera-distance driver while the
+camera moves and the timeline plays, and from another camera made active during playback,
+undo and redo of Drive LOD and of a PLY export; then a crowd: Shift+D of a head, Load
+Avatar on both heads at once, Alt+D of an avatar's head, Decode Frames of all three in one
+pass with undo and redo, the scene's LOD bias and Gaussian budget; save.
 
     blender --python scene_workflow.py -- SEQUENCE.npz AVATAR.npz OUT.blend
 """
@@ -338,6 +338,23 @@ def undo_drive_lod(ui):
     ui.op("archhead.drive_lod", undo=True, near=0.5, far=3.0)  # as the saved file had it
 
 
+def export_ply(ui):
+    """Export Gaussians (PLY) of the current frame, then Ctrl+Z and Ctrl+Shift+Z: the export
+    makes no undo step of its own, and the avatar, its points and decoded frames stay."""
+    name = f"{HEAD}_avatar"
+    _select(bpy.data.objects[name])
+    path = BLEND.parent / "ui_export.ply"
+    path.unlink(missing_ok=True)
+    ui.op("archhead.export_ply", filepath=str(path))
+    check(path.is_file(), "no PLY written")
+    header = path.read_bytes()[:400].split(b"end_header")[0].decode("ascii", "replace")
+    count = int(header.split("element vertex ")[1].split()[0])
+    check(count > 1000, f"the PLY holds {count} Gaussians")
+    ui.data["ply_gaussians"] = count
+    yield from ui_steps.undo_redo_keeps(ui, _avatar_and_frames, "Export PLY")
+    check(path.is_file(), "an undo removed the exported file")
+
+
 def _select(*objects, active=None):
     for obj in bpy.context.selected_objects:
         obj.select_set(False)
@@ -492,6 +509,7 @@ run_steps(
         ("LOD driver during playback", lod_driver_playback),
         ("LOD driver follows the camera made active", driver_follows_active_camera),
         ("undo and redo Drive LOD", undo_drive_lod),
+        ("Export PLY, then undo and redo", export_ply),
         ("a crowd: duplicates, Load and Decode on all, undo, bias and budget", crowd),
         ("save", save),
     ]

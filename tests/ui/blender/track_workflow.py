@@ -1,6 +1,7 @@
 """Track Video from the panel on a short real clip: the dialog confirmed with Return, a run
 cancelled half way (its backend gone, no output folder), then a run to the end with its
-progress in the panel, imported as a rigged, shape-keyed head.
+progress in the panel, imported as a rigged, shape-keyed head; Ctrl+Z takes the head away and
+Ctrl+Shift+Z brings it back.
 
     blender --python track_workflow.py -- VIDEO OUT_DIR FRAMES
 """
@@ -12,6 +13,7 @@ from pathlib import Path
 import bpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ui_steps  # noqa: E402
 from ui_driver import check, run_steps, script_args  # noqa: E402
 
 VIDEO, OUT = (Path(p) for p in script_args()[:2])
@@ -114,9 +116,17 @@ def track_to_the_end(ui):
     ui.screenshot("tracked_head_imported", area_type="VIEW_3D")
 
 
+def undo_track(ui):
+    """The run's import is an undo step of its own (BackendWatch pushes it)."""
+    yield from ui_steps.undo_redo(ui, lambda: "clip" in bpy.data.objects, "the tracked head")
+    head = bpy.data.objects["clip"]
+    check(head.data.shape_keys is not None, "the tracked head came back without shape keys")
+
+
 run_steps(
     [
         ("Track Video, cancelled half way", cancel_half_way),
         ("Track Video to the end", track_to_the_end),
+        ("undo and redo Track Video", undo_track),
     ]
 )

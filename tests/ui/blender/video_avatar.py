@@ -15,6 +15,7 @@ from pathlib import Path
 import bpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ui_steps  # noqa: E402
 from ui_driver import check, run_steps, script_args  # noqa: E402
 
 VIDEO, OUT = (Path(p) for p in script_args()[:2])
@@ -139,6 +140,16 @@ def resume_to_the_end(ui):
     ui.screenshot("avatar_loaded", area_type="VIEW_3D")
 
 
+def undo_video_avatar(ui):
+    """What the run added ends in one undo step: Ctrl+Z takes the avatar away, Ctrl+Shift+Z
+    brings it back with its points."""
+    name = f"{NAME}_avatar"
+    yield from ui_steps.undo_redo(ui, lambda: name in bpy.data.objects, "the avatar")
+    yield from ui.wait_until(
+        lambda: len(bpy.data.objects[name].data.vertices) > 0, 10, "the avatar's points"
+    )
+
+
 def again_on_a_finished_folder(ui):
     """A third time on the same Output: nothing to track or train; the head in the file is
     reused (no second head) and the avatar loaded again, no backend started."""
@@ -166,6 +177,7 @@ else:
     run_steps(
         [
             ("Avatar from Video again: resumed to the end", resume_to_the_end),
+            ("undo and redo Avatar from Video", undo_video_avatar),
             ("Avatar from Video on a finished folder", again_on_a_finished_folder),
         ]
     )
