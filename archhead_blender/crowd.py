@@ -56,7 +56,7 @@ def budgeted_lods(scene, depsgraph, objs) -> dict[int, float]:
     from .avatar_session import session
     from .scene_state import avatar_lod
 
-    wanted, sizes, uids, fixed = [], [], [], {}
+    wanted, sizes, counters, uids, fixed = [], [], [], [], {}
     for obj in objs:
         avatar = session(obj)
         if avatar.lod_override is not None:
@@ -66,11 +66,11 @@ def budgeted_lods(scene, depsgraph, objs) -> dict[int, float]:
         wanted.append(avatar_lod(obj, depsgraph))
         n_max, n_min = avatar.shared.texels_at_ends()
         sizes.append((n_max, cfg.s_max, cfg.s_min, n_min))
+        counters.append(avatar.shared.texels)
         uids.append(obj.session_uid)
     budget = scene_budget(scene)
     b = budget_bias(wanted, sizes, budget) if budget else 0.0
-    if budget and b < 1.0:  # the fit found b; the true counts (cached per S) have the last word
-        counters = [session(o).shared.texels for o in objs if session(o).lod_override is None]
+    if budget and b < 1.0 and sizes:  # the fit found b; the true counts have the last word
         step = 1.0 / max(max(s[1] - s[2] for s in sizes), 1)  # one UV resolution
         while b < 1.0 and exact_total(wanted, sizes, counters, b) > budget:
             b = min(b + step, 1.0)
