@@ -5,6 +5,7 @@ Operators call `build_head`; everything it creates is tracked so a failure remov
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field
 
@@ -27,6 +28,8 @@ from archhead_addon.rig import (
 
 from .compat import ensure_node_tree
 from .keyframes import ActionWriter
+
+ALBEDO_DIGEST = "archhead_albedo"  # a skin material's custom property: its albedo's digest
 
 BONE_LENGTH = 0.02  # metres; only the display length, rest frames stay axis-aligned
 
@@ -166,6 +169,13 @@ def _build_mesh(model, rest_vertices, name, created):
 
 
 def _albedo_material(albedo, name, created):
+    """The skin material of this albedo: one per albedo in a file, shared by every head that
+    has it (a crowd of heads of one model had each packed its own 1024² texture, 5 MB a
+    head); found again by the albedo's digest."""
+    digest = hashlib.sha1(np.ascontiguousarray(albedo)).hexdigest()[:16]
+    for mat in bpy.data.materials:
+        if mat.get(ALBEDO_DIGEST) == digest and mat.library is None:
+            return mat
     h, w = albedo.shape[:2]
     image = created.add(bpy.data.images.new(f"{name}_albedo", w, h, alpha=False))
     rgba = np.ones((h, w, 4), dtype=np.float32)
@@ -173,6 +183,7 @@ def _albedo_material(albedo, name, created):
     image.pixels.foreach_set(rgba.ravel())
     image.pack()
     mat = created.add(bpy.data.materials.new(f"{name}_skin"))
+    mat[ALBEDO_DIGEST] = digest
     nodes = ensure_node_tree(mat).nodes
     bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
     tex = nodes.new("ShaderNodeTexImage")

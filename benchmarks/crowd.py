@@ -13,7 +13,8 @@ all the others at once (one Load Avatar with them selected), the heads spread fr
 The avatars are untrained ones of the "demo" preset's size and of full size (their decode
 costs equal trained ones'). Then it measures, each over --frames frames not seen before:
 
-- RSS after the first head and after all N (the cost of one more head);
+- RSS after the first head and after all N (the cost of one more head), and after the heads
+  are imported but before their avatars load (which of it is the imported head's);
 - a frame change (handlers decoding every avatar; the median over the frames) with the
   distance-driven levels and with every avatar held at LOD 0, and their ratio;
 - Decode Frames over the whole crowd (one pass), per head and frame;
@@ -72,7 +73,8 @@ ROLLED = ("expr", "jaw", "neck", "eyes", "rotation")
 
 
 def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], picture=False):
-    """The crowd (module docstring); returns (scene, avatars, RSS with one head, with all)."""
+    """The crowd (module docstring); returns (scene, avatars, RSS: with one head and its
+    avatar, with every head imported, with every avatar loaded)."""
     import bpy
     import numpy as np
 
@@ -90,6 +92,7 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
             _load(heads[:1], checkpoint)
             scene.frame_set(0)
             rss_first = _rss_mb()
+    rss_heads = _rss_mb()
     _load(heads[1:], checkpoint)  # one Load Avatar on every selected head
     scene.render.resolution_x, scene.render.resolution_y = size
     camera = scene.camera
@@ -111,7 +114,7 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
     for obj in avatars:
         api.drive_lod_by_distance(obj, camera, near, far, "SCREEN")
     bpy.context.view_layer.update()
-    return scene, avatars, rss_first, _rss_mb()
+    return scene, avatars, (rss_first, rss_heads, _rss_mb())
 
 
 def _load(heads, checkpoint: Path) -> None:
@@ -143,7 +146,9 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
     else:  # a trained checkpoint's path
         checkpoint = Path(kind).resolve()
     watch = api.Stopwatch()
-    scene, avatars, rss_first, rss_all = _build(n, checkpoint, folder, size, bool(picture))
+    scene, avatars, (rss_first, rss_heads, rss_all) = _build(
+        n, checkpoint, folder, size, bool(picture)
+    )
     built_s = watch.seconds
     context = bpy.context
     sessions = [api.session(obj) for obj in avatars]
@@ -195,6 +200,9 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
         "rss_first_mb": round(rss_first),
         "rss_all_mb": round(rss_all),
         "mb_per_extra_head": round((rss_all - rss_first) / max(n - 1, 1), 1),
+        # of which the imported head (mesh, shape keys, rig, animation) and the avatar
+        "mb_per_extra_rig": round((rss_heads - rss_first) / max(n - 1, 1), 1),
+        "mb_per_extra_avatar": round((rss_all - rss_heads) / max(n - 1, 1), 1),
         "gaussians_driven": driven_count,
         "gaussians_lod0": lod0_count,
         "frame_change_ms_driven": round(driven_ms),
@@ -230,8 +238,9 @@ def table(rows: list[dict]) -> str:
     lines = [
         "| N | avatar | Gaussians driven / LOD 0 | frame change ms driven / LOD 0 (ratio) "
         "| Decode Frames ms per head-frame | handler ms per head: cached frame / idle "
-        "| exact render s driven / LOD 0 | RSS first head / all, MB per extra head |",
-        "|---:|---|---:|---|---:|---|---|---|",
+        "| exact render s driven / LOD 0 | RSS first head / all "
+        "| MB per extra head: all = imported head + avatar |",
+        "|---:|---|---:|---|---:|---|---|---|---|",
     ]
     for r in rows:
         ratio = r["frame_change_ms_driven"] / max(r["frame_change_ms_lod0"], 1)
@@ -241,7 +250,8 @@ def table(rows: list[dict]) -> str:
             f"{r['frame_change_ms_lod0']} ({ratio:.2f}x) | {r['decode_ms_per_head_frame']} | "
             f"{r['handler_ms_per_head_cached']} / {r['handler_ms_per_head_idle']} | "
             f"{r['render_s_driven']} / {r['render_s_lod0']} | {r['rss_first_mb']} / "
-            f"{r['rss_all_mb']} MB, {r['mb_per_extra_head']} |"
+            f"{r['rss_all_mb']} MB | {r['mb_per_extra_head']} = {r['mb_per_extra_rig']} + "
+            f"{r['mb_per_extra_avatar']} |"
         )
     return "\n".join(lines)
 

@@ -212,3 +212,24 @@ def test_expression_components_never_used_get_no_shape_key(imported, tmp_path):
         }
         got = _evaluated_vertices(head, i + 1)
         assert np.abs(got - forward(model, **codes)[0]).max() <= 1e-5
+
+
+def test_heads_of_one_model_share_their_skin(imported, tmp_path):
+    """A crowd of heads of one model packs its albedo once (it had cost 5 MB a head); a
+    model with another albedo gets a material of its own."""
+    _, model, seq, _ = imported
+    heads = []
+    for name in ("first", "second"):
+        write_canonical(seq, tmp_path / f"{name}.npz")
+        images = len(bpy.data.images)
+        op = bpy.ops.archhead.import_sequence
+        assert op(filepath=str(tmp_path / f"{name}.npz"), use_camera=False) == {"FINISHED"}
+        heads.append(bpy.data.objects[name])
+    assert len(bpy.data.images) == images  # the second head packed none
+    head, second = heads
+    assert second.data.materials[0] == head.data.materials[0]
+    from archhead_blender.head_builder import _albedo_material, _Created
+
+    other = _albedo_material(255 - model.albedo, "other", _Created())
+    assert other != head.data.materials[0]
+    assert other.node_tree.nodes["Image Texture"].image.size[:] == model.albedo.shape[1::-1]
