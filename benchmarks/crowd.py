@@ -13,10 +13,11 @@ all the others at once (one Load Avatar with them selected), the heads spread fr
 The avatars are untrained ones of the "demo" preset's size and of full size (their decode
 costs equal trained ones'). Then it measures, each over --frames frames not seen before:
 
-- RSS after the first head and after all N (the cost of one more head), and after the heads
-  are imported but before their avatars load (which of it is the imported head's);
+- RSS: one head with its avatar, and what each further head adds, by its import and by its
+  avatar (all heads are imported first, then the avatars load);
 - a frame change (handlers decoding every avatar; the median over the frames) with the
-  distance-driven levels and with every avatar held at LOD 0, and their ratio;
+  distance-driven levels and with every avatar held at LOD 0, and their ratio; and with the
+  add-on paused (Blender evaluating the rigs alone: the part no level of detail changes);
 - Decode Frames over the whole crowd (one pass), per head and frame;
 - the handler on frames already decoded: per head with nothing to change, and per head
   showing a cached frame;
@@ -73,8 +74,9 @@ ROLLED = ("expr", "jaw", "neck", "eyes", "rotation")
 
 
 def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], picture=False):
-    """The crowd (module docstring); returns (scene, avatars, RSS: with one head and its
-    avatar, with every head imported, with every avatar loaded)."""
+    """The crowd (module docstring); returns (scene, avatars, RSS in MB: one head with its
+    avatar, what each further head adds by its import and by its avatar). The heads are all
+    imported before any avatar loads, so that neither part reuses memory the other freed."""
     import bpy
     import numpy as np
 
@@ -82,17 +84,18 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
-    heads = []
+    heads, rss = [], {}
     for i in range(n):
         path = _sequence(folder, i, offset=not picture)
         if bpy.ops.archhead.import_sequence(filepath=str(path)) != {"FINISHED"}:
             raise SystemExit(f"could not import {path}")
         heads.append(bpy.data.objects[path.stem])
-        if i == 0:  # one head with its avatar: the RSS every further head adds to
-            _load(heads[:1], checkpoint)
-            scene.frame_set(0)
-            rss_first = _rss_mb()
-    rss_heads = _rss_mb()
+        bpy.context.view_layer.update()  # Blender's evaluated copies (of the shape keys too)
+        rss.setdefault("one head", _rss_mb())
+    rss["heads"] = _rss_mb()
+    _load(heads[:1], checkpoint)  # one head with its avatar: what every further one adds to
+    scene.frame_set(0)
+    rss["one avatar"] = _rss_mb()
     _load(heads[1:], checkpoint)  # one Load Avatar on every selected head
     scene.render.resolution_x, scene.render.resolution_y = size
     camera = scene.camera
@@ -114,7 +117,10 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
     for obj in avatars:
         api.drive_lod_by_distance(obj, camera, near, far, "SCREEN")
     bpy.context.view_layer.update()
-    return scene, avatars, (rss_first, rss_heads, _rss_mb())
+    extra = max(n - 1, 1)
+    first = rss["one head"] + rss["one avatar"] - rss["heads"]
+    per_head = (rss["heads"] - rss["one head"]) / extra
+    return scene, avatars, (first, per_head, (_rss_mb() - rss["one avatar"]) / extra)
 
 
 def _load(heads, checkpoint: Path) -> None:
@@ -146,7 +152,7 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
     else:  # a trained checkpoint's path
         checkpoint = Path(kind).resolve()
     watch = api.Stopwatch()
-    scene, avatars, (rss_first, rss_heads, rss_all) = _build(
+    scene, avatars, (rss_first, rig_mb, avatar_mb) = _build(
         n, checkpoint, folder, size, bool(picture)
     )
     built_s = watch.seconds
@@ -172,6 +178,14 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
     lod0_count = gaussians()
     for s in sessions:
         s.lod_override = None
+    # Blender's own part of a frame change (rigs, shape keys, drivers): the add-on paused
+    from archhead_blender.handlers import resume, suspend
+
+    suspend()
+    try:
+        blender_ms = statistics.median(frame_change() for _ in range(frames))
+    finally:
+        resume()
     decode_frames = [next(frame) for _ in range(frames)]
     start = time.perf_counter()
     api.decode_frames(context, avatars, decode_frames)
@@ -198,15 +212,16 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
         "avatar": kind,
         "build_s": round(built_s, 1),
         "rss_first_mb": round(rss_first),
-        "rss_all_mb": round(rss_all),
-        "mb_per_extra_head": round((rss_all - rss_first) / max(n - 1, 1), 1),
-        # of which the imported head (mesh, shape keys, rig, animation) and the avatar
-        "mb_per_extra_rig": round((rss_heads - rss_first) / max(n - 1, 1), 1),
-        "mb_per_extra_avatar": round((rss_all - rss_heads) / max(n - 1, 1), 1),
+        "rss_all_mb": round(rss_first + (n - 1) * (rig_mb + avatar_mb)),
+        # what each further head adds: its import (mesh, shape keys, rig, animation), its avatar
+        "mb_per_extra_head": round(rig_mb + avatar_mb, 1),
+        "mb_per_extra_rig": round(rig_mb, 1),
+        "mb_per_extra_avatar": round(avatar_mb, 1),
         "gaussians_driven": driven_count,
         "gaussians_lod0": lod0_count,
         "frame_change_ms_driven": round(driven_ms),
         "frame_change_ms_lod0": round(lod0_ms),
+        "frame_change_ms_blender": round(blender_ms),
         "decode_ms_per_head_frame": round(decode_ms, 1),
         "handler_ms_per_head_cached": round(cached_ms, 2),
         "handler_ms_per_head_idle": round(idle, 3),
@@ -236,7 +251,8 @@ def _picture(render: Path, picture: Path) -> None:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| N | avatar | Gaussians driven / LOD 0 | frame change ms driven / LOD 0 (ratio) "
+        "| N | avatar | Gaussians driven / LOD 0 "
+        "| frame change ms driven / LOD 0 (ratio) / add-on paused "
         "| Decode Frames ms per head-frame | handler ms per head: cached frame / idle "
         "| exact render s driven / LOD 0 | RSS first head / all "
         "| MB per extra head: all = imported head + avatar |",
@@ -247,7 +263,8 @@ def table(rows: list[dict]) -> str:
         lines.append(
             f"| {r['heads']} | {r['avatar']} | {r['gaussians_driven']:,} / "
             f"{r['gaussians_lod0']:,} | {r['frame_change_ms_driven']} / "
-            f"{r['frame_change_ms_lod0']} ({ratio:.2f}x) | {r['decode_ms_per_head_frame']} | "
+            f"{r['frame_change_ms_lod0']} ({ratio:.2f}x) / {r['frame_change_ms_blender']} | "
+            f"{r['decode_ms_per_head_frame']} | "
             f"{r['handler_ms_per_head_cached']} / {r['handler_ms_per_head_idle']} | "
             f"{r['render_s_driven']} / {r['render_s_lod0']} | {r['rss_first_mb']} / "
             f"{r['rss_all_mb']} MB | {r['mb_per_extra_head']} = {r['mb_per_extra_rig']} + "
