@@ -214,11 +214,13 @@ def _train_config():
 
 
 def _train_state():
-    """A state as Trainer.save writes it, of a tiny avatar: the model's tensors, Adam's groups
-    features, mapping and decoder, and the moments of the parameters that had a gradient."""
+    """A state as Trainer.save writes it, of a tiny avatar, tensors as numpy: the model's
+    tensors, Adam's groups features, mapping and decoder, the moments of the parameters that
+    had a gradient, and the checksum of it all."""
     import torch
 
     from archhead_addon.avatar.config import parameter_shapes
+    from archhead_addon.io.checksum import KEY, tree_checksum
     from archhead_addon.train.config import TrainConfig
 
     torch.manual_seed(0)
@@ -233,7 +235,7 @@ def _train_state():
     )  # fmt: skip
     (params["features.4"].sum() + params["mapping.0.bias"].sum()).backward()
     opt.step()
-    return {
+    state = {
         "format": "archhead-train-state",
         "version": 1,
         "step": 5,
@@ -244,19 +246,24 @@ def _train_state():
         "model": {"identity_shape": torch.randn(6), **{k: v.detach() for k, v in params.items()}},
         "optimizer": opt.state_dict(),
     }
+    state = _numpy_tree(state)
+    return {**state, KEY: tree_checksum(state)}
 
 
 def _train_state_damage(state: dict) -> list[tuple[str, dict]]:
     """What no byte damage makes: a state whose parts disagree with each other (each would
-    fail in Trainer.resume or in Adam's first step)."""
+    fail in Trainer.resume or in Adam's first step), its checksum made anew, so that only
+    state_file's own checks can catch it."""
     import copy
+
+    from archhead_addon.io.checksum import KEY, tree_checksum
 
     out = []
 
     def case(label, change):
         s = copy.deepcopy(state)
         change(s)
-        out.append((label, s))
+        out.append((label, {**s, KEY: tree_checksum(s)}))
 
     moments = state["optimizer"]["state"]
     first = next(iter(moments))
@@ -288,6 +295,47 @@ def _train_state_damage(state: dict) -> list[tuple[str, dict]]:
     for value in (1e30, 2e12):
         case(f"optimizer exp_avg_sq {value:g}",
              lambda s, v=value: s["optimizer"]["state"][first]["exp_avg_sq"].fill(v))  # fmt: skip
+    return out
+
+
+def _train_state_checksum_cases(state: dict) -> list[tuple[str, dict]]:
+    """A state whose checksum is not of its content: a value changed as a damaged or edited
+    file changes it, plausible and finite (only the checksum tells), or the checksum of
+    another state; and keys in another order, which the checksum does not count."""
+    import copy
+
+    from archhead_addon.io.checksum import KEY, tree_checksum
+
+    out = []
+
+    def case(label, change):
+        s = copy.deepcopy(state)
+        change(s)
+        out.append((label, s))
+
+    def last_bit(a):
+        flat = a.reshape(-1)
+        flat[0] = np.nextafter(flat[0], flat.dtype.type(np.inf))  # in the array's own dtype
+
+    first = next(iter(state["optimizer"]["state"]))
+    groups = state["optimizer"]["param_groups"]
+    case("checksum of another state",
+         lambda s: s.update({KEY: tree_checksum({**s, "step": s["step"] + 1})}))  # fmt: skip
+    case("checksum not text", lambda s: s.update({KEY: 0}))
+    case("checksum in capitals", lambda s: s.update({KEY: s[KEY].upper()}))
+    case("step + 1, checksum kept", lambda s: s.update(step=s["step"] + 1))
+    case("elapsed doubled, checksum kept", lambda s: s.update(elapsed=2 * s["elapsed"]))
+    case("a weight's last bit, checksum kept", lambda s: last_bit(s["model"]["mapping.0.bias"]))
+    case("identity_shape's last bit, checksum kept",
+         lambda s: last_bit(s["model"]["identity_shape"]))  # fmt: skip
+    case("Adam moment's last bit, checksum kept",
+         lambda s: last_bit(s["optimizer"]["state"][first]["exp_avg_sq"]))  # fmt: skip
+    case("learning rate halved, checksum kept",
+         lambda s: s["optimizer"]["param_groups"][0].update(lr=0.5 * groups[0]["lr"]))  # fmt: skip
+    case("config edited, checksum kept",
+         lambda s: s.update(config=s["config"].replace('"seed": 0', '"seed": 1')))  # fmt: skip
+    case("keys in reverse order (same content)",
+         lambda s: [s.update({k: s.pop(k)}) for k in reversed(list(s))])  # fmt: skip
     return out
 
 
@@ -1167,14 +1215,14 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
     family("training config", "c.json", text,
            json_mutations(config, rng) + byte_mutations(text, rng)
            + [("avatar.tau 1e-300", tiny_tau)])  # fmt: skip
-    state = _train_state()
-    state_np = _numpy_tree(state)
+    state_np = _train_state()
     family("train_state", "train_state.pt", torch_bytes(state_np),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(state_np, rng)]
            + [(lbl, torch_bytes(d)) for lbl, d in _train_state_damage(state_np)]
            + pickle_mutations(state_np, rng, marker, splice_torch)
            + zip_mutations(torch_bytes(state_np)) + torch_size_bombs(torch_bytes(state_np))
-           + byte_mutations(torch_bytes(state_np), rng))  # fmt: skip
+           + byte_mutations(torch_bytes(state_np), rng),
+           [(lbl, torch_bytes(d)) for lbl, d in _train_state_checksum_cases(state_np)])  # fmt: skip
     ply = _ply_bytes()
     family("PLY", "a.ply", ply,
            ply_mutations(ply, rng) + byte_mutations(ply, rng),

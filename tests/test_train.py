@@ -1,9 +1,11 @@
 """Training end to end on a tiny synthetic subject: the loss falls, the checkpoint decodes and
-renders in the numpy runtime; the two stages; exact resume; the config file and CLI errors;
+renders in the numpy runtime; the two stages; exact resume, and the state's checksum (a
+changed value refused, a state without one resumed with a warning); the config file and CLI errors;
 the per-frame refinement of the tracked codes (lr.codes, train/refine.py), its exact resume
 and the refined tracking that `evaluate` scores training frames with."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -15,6 +17,7 @@ from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.evaluate.__main__ import main as evaluate_main
 from archhead_addon.evaluate.render import render_frame
 from archhead_addon.flame.model import load_model
+from archhead_addon.io.errors import InputError, InputWarning
 from archhead_addon.sequences import read_sequence
 from archhead_addon.train.__main__ import main
 from archhead_addon.train.config import TrainConfig
@@ -183,6 +186,39 @@ def test_resumed_run_takes_the_same_steps(dataset, model, tmp_path):
         Trainer.resume(
             state, tmp_path / "b", frames, other, dataset.background, torch.device("cpu")
         )
+
+
+def test_a_state_with_one_changed_value_is_refused_by_its_checksum(dataset, model, tmp_path):
+    run = trainer(dataset, model, tmp_path)
+    run.train_step()
+    run.save()
+    path = RunFolder(tmp_path).state
+    state = torch.load(path, weights_only=True)
+    weight = next(v for k, v in state["model"].items() if k.startswith("decoder.")).view(-1)
+    weight[0] = torch.nextafter(weight[0], weight[0] + 1)  # one plausible bit, no check sees it
+    torch.save(state, path)
+    with pytest.raises(InputError, match="does not match the file's content") as error:
+        load_state(path)
+    assert error.value.path == path and error.value.key == "checksum"
+    assert str(error.value).startswith(f"{path}: ") and "damaged or was edited" in str(error.value)
+
+
+def test_a_state_from_before_checksums_resumes_with_a_warning(dataset, model, tmp_path):
+    run = trainer(dataset, model, tmp_path)
+    run.train_step()
+    run.save()
+    path = RunFolder(tmp_path).state
+    state = torch.load(path, weights_only=True)
+    del state["checksum"]
+    torch.save(state, path)
+    with pytest.warns(InputWarning, match=re.escape(f"{path}: carries no checksum")):
+        state = load_state(path)
+    frames = frames_on_device(dataset, torch.device("cpu"))
+    resumed = Trainer.resume(
+        state, tmp_path, frames, model, dataset.background, torch.device("cpu")
+    )
+    resumed.train_step()
+    assert resumed.step == 2
 
 
 def test_presets_load_and_bad_configs_are_named(tmp_path):

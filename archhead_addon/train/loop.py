@@ -19,8 +19,9 @@ the same steps as one that was never stopped.
 
 Files in the output folder, each replaced atomically:
   avatar.npz       the avatar checkpoint (numpy-readable; avatar/checkpoint_format.py)
-  train_state.pt   step, elapsed time, config, model and optimizer state; torch.save of
-                   tensors and plain types only, read back with torch.load(weights_only=True)
+  train_state.pt   step, elapsed time, config, model and optimizer state, and a checksum of
+                   them (io/checksum.py); torch.save of tensors and plain types only (what
+                   torch.load(weights_only=True) reads), read back by state_file.py
   config.json      the training config of the run
   checkpoint.json  the step and the digests of the three above (run_folder.py)
 A checkpoint writes them in that order: train_state.pt, config.json, avatar.npz, then the
@@ -45,6 +46,8 @@ from ..avatar.checkpoint import save_avatar
 from ..avatar.config import AvatarConfig
 from ..avatar.model import ArchHeadAvatar
 from ..io.atomic import atomic_path, write_bytes_atomic
+from ..io.checksum import KEY as CHECKSUM
+from ..io.checksum import tree_checksum
 from ..sequences.canonical import write_canonical
 from ..splat import rasterization
 from ..splat.colour_space import display_background, linear_to_srgb_torch
@@ -340,6 +343,7 @@ class Trainer:
         }
         if self.refinement is not None:
             state["refinement"] = self.refinement.state()
+        state[CHECKSUM] = tree_checksum(_numpy_tree(state))
         folder = RunFolder(self.out_dir)
         with atomic_path(folder.state) as tmp:
             torch.save(state, tmp)
@@ -411,6 +415,18 @@ def _as_tensors(value):
         return {k: _as_tensors(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
         return type(value)(_as_tensors(v) for v in value)
+    return value
+
+
+def _numpy_tree(value):
+    """The state as state_file.py reads it back (CPU tensors as numpy views, bfloat16 as
+    float32), for its checksum."""
+    if isinstance(value, torch.Tensor):
+        return (value.float() if value.dtype == torch.bfloat16 else value).numpy()
+    if isinstance(value, dict):
+        return {k: _numpy_tree(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_numpy_tree(v) for v in value)
     return value
 
 

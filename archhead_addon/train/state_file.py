@@ -5,7 +5,10 @@ a NaN deep inside the optimizer. The optimizer's groups and per-parameter state 
 against the saved model's tensors (and the refinement's), in the order `Trainer` builds its
 Adam groups: torch's `load_state_dict` checks only the group sizes, and a moment of the
 wrong shape would fail inside Adam's first step. Finite values no run produces (a weight or a
-moment of 1e30) are refused too: past PARAMETER_LIMIT and MOMENT_LIMITS below."""
+moment of 1e30) are refused too: past PARAMETER_LIMIT and MOMENT_LIMITS below. Last, the
+state's checksum (io/checksum.py, `tree_checksum`; written by `Trainer.save`) is checked, so
+a damaged or edited value no check can tell from a real one is refused too; a state from
+before checksums is read with a warning."""
 
 from __future__ import annotations
 
@@ -15,7 +18,8 @@ import math
 import numpy as np
 
 from ..avatar.config import AvatarConfig, parameter_shapes
-from ..io.errors import InputError
+from ..io.checksum import KEY, tree_checksum, verify
+from ..io.errors import InputError, warn_input
 from ..io.schema import check_finite
 from ..io.torch_zip import load_torch_file
 from ..sequences.validation import PLAUSIBLE, TRAIN_FACTOR
@@ -77,6 +81,14 @@ def read_train_state(path) -> dict:
     if getattr(parsed["config"].lr, "codes", 0) > 0 and not state.get("refinement"):
         raise InputError(path, "refinement", "missing: the run's config refines the codes")
     _optimizer(state.get("optimizer"), path, _parameters(state, path))
+    # last, as the avatar checkpoint's: a value the checks above name is reported as that
+    if not verify(state, path, tree_checksum):
+        warn_input(
+            path,
+            None,
+            f"carries no {KEY} (written before training states had one): "
+            "its content is read unchecked",
+        )
     return state
 
 
