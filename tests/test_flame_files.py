@@ -148,6 +148,34 @@ def test_bad_model_keys_named(tmp_path, arrays, mutate, key, problem):
         load_model(path)
 
 
+@pytest.mark.parametrize(
+    "mutate, key, problem",
+    [
+        (lambda a: a.update(v_template=np.full_like(a["v_template"], -1)), "v_template",
+         "every vertex at one point"),
+        (lambda a: a.update(shapedirs=a["shapedirs"] + 0.5), "shapedirs",
+         "more than the template's whole size"),
+        (lambda a: a.update(posedirs=np.full_like(a["posedirs"], 1e6)), "posedirs",
+         "per unit coefficient"),
+        (lambda a: a.update(weights=a["weights"] + 0.5), "weights", "not in 0..1 summing to 1"),
+        (lambda a: a.update(weights=-a["weights"]), "weights", "not in 0..1"),
+        (lambda a: a.update(J_regressor=np.full_like(a["J_regressor"], -1)), "J_regressor",
+         "row sums to -40, not 1"),
+        (lambda a: a.update(f=np.ones_like(a["f"], bool)), "f", "booleans"),
+        (lambda a: a.update(shapedirs=a["shapedirs"] > 0), "shapedirs", "booleans"),
+    ],
+    ids=["template of one point", "shapedirs +0.5", "posedirs 1e6", "weights +0.5",
+         "weights negative", "J_regressor -1", "f bool", "shapedirs bool"],
+)  # fmt: skip
+def test_impossible_rigs_are_refused(tmp_path, arrays, mutate, key, problem):
+    """Values of the right type and shape that no FLAME-layout model has (fuzz corpus)."""
+    mutate(arrays)
+    path = tmp_path / "bad.npz"
+    np.savez(path, **arrays)
+    with pytest.raises(InputError, match=rf"bad\.npz: key '{key}': .*{problem}"):
+        load_model(path)
+
+
 def test_corrupt_and_missing_files(tmp_path, arrays):
     path = tmp_path / "model.npz"
     np.savez(path, **arrays)

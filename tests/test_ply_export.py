@@ -101,3 +101,44 @@ def test_transform_gaussians_into_blender_world():
     )
     with pytest.raises(ValueError, match="unevenly"):
         similarity_parts(np.diag([1.0, 2.0, 1.0, 1.0]))
+
+
+def test_read_ply_refuses_what_no_splat_file_holds(tmp_path):
+    """A header count or property list that disagrees with the body, a header line that is
+    not PLY, quaternions no float32 renderer can normalise (fuzz corpus cases)."""
+    path = tmp_path / "g.ply"
+    g = _gaussians(n=20)
+    write_ply(path, **g)
+    data = path.read_bytes()
+    for old, new in (
+        (b"element vertex 20", b"element vertex 19"),
+        (b"element vertex 20", b"element vertex 0"),
+        (b"property float nx\n", b""),
+    ):
+        path.write_bytes(data.replace(old, new))
+        with pytest.raises(InputError, match="key 'element vertex': .* the header's count or"):
+            read_ply(path)
+    path.write_bytes(data + bytes(100))
+    with pytest.raises(InputError, match="disagree with the body"):
+        read_ply(path)
+    path.write_bytes(data.replace(b"property float nx", b"property\0\0\0 float nx"))
+    with pytest.raises(InputError, match="key 'header': bytes that are not text"):
+        read_ply(path)
+    path.write_bytes(data.replace(b"property float nx", b"propertee float nx"))
+    with pytest.raises(InputError, match="key 'header': unknown line 'propertee float nx'"):
+        read_ply(path)
+    for scale in (1e-30, 1e30):
+        write_ply(path, **{**g, "quats": g["quats"] * np.float32(scale)})
+        with pytest.raises(InputError, match="key 'rot_0': quaternion of norm .* at vertex"):
+            rows_to_gaussians(read_ply(path), path)
+
+
+def test_read_ply_flushes_subnormal_values_with_a_warning(tmp_path):
+    from archhead_addon.io.errors import InputWarning
+
+    g = _gaussians(n=20)
+    g["sh"][3, 2, 1] = np.float32(2.4e-43)
+    write_ply(tmp_path / "g.ply", **g)
+    with pytest.warns(InputWarning, match="key 'f_rest_16': 1 subnormal float32"):
+        back = rows_to_gaussians(read_ply(tmp_path / "g.ply"))
+    assert back["sh"][3, 2, 1] == 0

@@ -267,3 +267,88 @@ def test_mixed_frame_numbering(tmp_path, names, problem):
     for name in names:
         (tmp_path / "mixed" / name).write_bytes((tmp_path / "one" / "0.npz").read_bytes())
     _raises(tmp_path / "mixed", None, problem, tmp_path / "mixed", "flame-head-tracker")
+
+
+# ---------------------------------------------------------------- values no tracker writes
+
+
+def test_booleans_where_numbers_belong(tmp_path):
+    """A bool array reads as 0/1 after a cast: refused in every container, naming the key."""
+    for kind, suffix in (("npz", ".npz"), ("pickle2", ".pkl"), ("torch", ".pt")):
+        clip = clip_dict()
+        clip["exp"] = clip["exp"] > 0
+        path = tmp_path / f"clip{suffix}"
+        write_clip(path, kind, clip)
+        _raises(path, "exp", "booleans where numbers are expected", path)
+    write_metrical(tmp_path / "m")
+    frame = tmp_path / "m" / "checkpoint" / "00001.frame"
+    _edit_frame(frame, lambda f: f.update(img_size=np.array([True, True])))
+    _raises(frame, "img_size", "booleans", tmp_path / "m")
+
+
+def test_subnormal_float32_values_are_flushed_with_a_warning(tmp_path):
+    from archhead_addon.io.errors import InputWarning
+
+    clip = clip_dict()
+    clip["jaw"][2, 1] = np.float32(7e-43)  # a zero with damaged exponent bits
+    write_clip(tmp_path / "c.npz", "npz", clip)
+    with pytest.warns(InputWarning, match="key 'jaw': 1 subnormal float32 value"):
+        seq = read_sequence(tmp_path / "c.npz")
+    assert seq.jaw[2, 1] == 0
+
+
+@pytest.mark.parametrize(
+    "row, value",
+    [((2, 0), 0.5), ((2, 2), 1e6), ((1, 0), 3.0)],
+    ids=["last row 0.5 0 1", "last row 0 0 1e6", "lower triangle"],
+)
+def test_intrinsics_that_are_no_pinhole_camera(tmp_path, row, value):
+    write_metrical(tmp_path / "m")
+    frame = tmp_path / "m" / "checkpoint" / "00002.frame"
+
+    def edit(f):
+        f["opencv"]["K"][(0, *row)] = value
+
+    _edit_frame(frame, edit)
+    _raises(tmp_path / "m", "K", "not pinhole intrinsics at frame index 2", tmp_path / "m")
+
+
+def test_frame_ids_beyond_32_bits(tmp_path):
+    write_vhap_export(tmp_path / "v")
+    path = tmp_path / "v" / "transforms.json"
+    top = json.loads(path.read_text())
+    top["frames"][-1]["timestep_index"] = 1 << 62
+    path.write_text(json.dumps(top))
+    _raises(tmp_path / "v", "frame_ids", f"frame id {1 << 62} outside 0..2147483647", path.parent)
+
+
+def test_vhap_frames_listed_twice_or_sharing_codes(tmp_path):
+    write_vhap_export(tmp_path / "v")
+    path = tmp_path / "v" / "transforms.json"
+    good = json.loads(path.read_text())
+    top = json.loads(json.dumps(good))
+    top["frames"][1]["timestep_index"] = 0
+    path.write_text(json.dumps(top))
+    _raises(path, "frames[1]", "timestep 0 of camera 0 again", tmp_path / "v")
+    top = json.loads(json.dumps(good))
+    top["frames"][1]["flame_param_path"] = top["frames"][0]["flame_param_path"]
+    path.write_text(json.dumps(top))
+    _raises(path, "frames[1].flame_param_path", ".* is also timestep 0's", tmp_path / "v")
+
+
+def test_vhap_tracked_half_a_camera_or_no_identity(tmp_path):
+    path = tmp_path / "tracked_flame_params.npz"
+    for missing in ("image_size", "focal_length"):
+        write_vhap_tracked(path)
+        _edit_npz(path, **{missing: None})
+        _raises(path, missing, "missing: VHAP writes focal_length and image_size", path)
+    write_vhap_tracked(path)
+    _edit_npz(path, shape=np.zeros(0, np.float32))
+    _raises(path, "shape", "no identity coefficients", path)
+
+
+def test_metrical_6d_of_huge_parallel_vectors(tmp_path):
+    write_metrical(tmp_path / "m")
+    frame = tmp_path / "m" / "checkpoint" / "00000.frame"
+    _edit_frame(frame, lambda f: f["flame"].update(jaw=np.full((1, 6), 1e30, np.float32)))
+    _raises(frame, "flame.jaw", "degenerate 6D rotation", tmp_path / "m")

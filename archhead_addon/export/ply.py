@@ -19,7 +19,7 @@ import numpy as np
 
 from ..io.atomic import atomic_path
 from ..io.errors import InputError
-from ..io.schema import check_finite, check_range
+from ..io.schema import F32_TINY, check_finite, check_range, flush_subnormal
 
 _PLY_TYPES = {
     "char": "i1",
@@ -96,28 +96,36 @@ def read_ply(path) -> dict[str, np.ndarray]:
     if not data.startswith(b"ply") or end < 0 or data.find(b"\n", end) < 0:
         raise InputError(path, None, "not a PLY file (no 'ply' magic or no end_header)")
     body = data.index(b"\n", end) + 1
-    fields, count = _header(path, data[:body].decode("ascii", "replace").splitlines())
+    fields, count, last = _header(path, data[:body].decode("ascii", "replace").splitlines())
     dtype = np.dtype(fields)
-    if len(data) - body < count * dtype.itemsize:
+    need, have = count * dtype.itemsize, len(data) - body
+    # elements after the vertices (faces) hold more bytes; with none, the sizes must agree
+    if have < need or (last and have != need):
         raise InputError(
             path,
-            "vertex",
-            f"truncated: {count} vertices need "
-            f"{count * dtype.itemsize} bytes, {len(data) - body} present",
-        )
+            "element vertex",
+            f"{count} vertices of {dtype.itemsize} bytes need {need} bytes, the body holds "
+            f"{have}: " + ("truncated" if have < need else "the header's count or properties "
+                           "disagree with the body"),
+        )  # fmt: skip
     table = np.frombuffer(data, dtype, count, body)
     out = {name: table[name].copy() for name, _ in fields}
     for name, value in out.items():
         check_finite(value, path, name, along="vertex")
+        out[name] = flush_subnormal(value, path, name)
     return out
 
 
 def _header(path, lines: list[str]) -> tuple[list, int]:
     if "format binary_little_endian 1.0" not in lines:
         raise InputError(path, "format", "only binary_little_endian PLY files are read")
-    fields, count, element = [], None, None
+    fields, count, element, last = [], None, None, True
     for line in lines:
         tokens = line.split()
+        if not line.isascii() or not line.isprintable():
+            raise InputError(path, "header", f"bytes that are not text in line {line[:60]!r}")
+        if tokens[:1] and tokens[0] not in _HEADER_WORDS:
+            raise InputError(path, "header", f"unknown line {line[:60]!r}")
         if tokens[:1] == ["element"]:
             if len(tokens) != 3 or not tokens[2].isdigit():
                 raise InputError(path, "element", f"malformed line {line[:60]!r}")
@@ -127,6 +135,7 @@ def _header(path, lines: list[str]) -> tuple[list, int]:
             elif count is None:
                 raise InputError(path, f"element {element}", "the vertex element must come first")
             else:
+                last = False
                 break  # elements after the vertices are not read
         elif tokens[:1] == ["property"] and element == "vertex":
             if len(tokens) != 3 or tokens[1] not in _PLY_TYPES:
@@ -138,12 +147,16 @@ def _header(path, lines: list[str]) -> tuple[list, int]:
         raise InputError(path, "element vertex", "missing")
     if not fields:
         raise InputError(path, "element vertex", "has no properties")
-    return fields, count
+    return fields, count, last
+
+
+_HEADER_WORDS = {"ply", "format", "comment", "obj_info", "element", "property", "end_header"}
 
 
 def rows_to_gaussians(props: dict[str, np.ndarray], path=None) -> dict[str, np.ndarray]:
     """`read_ply` output back to means, log_scales, quats, opacity_logits, sh (N,K,3).
-    Missing properties and zero quaternions are InputErrors; values past plausible ranges
+    Missing properties and quaternions no float32 renderer can normalise (norm outside
+    QUAT_NORM) are InputErrors; values past plausible ranges
     (a bit flip in a float's exponent, usually) give an InputWarning."""
     n_rest = len([k for k in props if re.fullmatch(r"f_rest_\d+", k)])
     if n_rest % 3:
@@ -166,14 +179,24 @@ def rows_to_gaussians(props: dict[str, np.ndarray], path=None) -> dict[str, np.n
             [dc[:, None], np.swapaxes(rest.reshape(len(dc), 3, n_rest // 3), 1, 2)], axis=1
         ),
     }
-    zero = ~(np.abs(out["quats"]).max(axis=1) > 0)
-    if zero.any():
-        raise InputError(path, "rot_0", f"zero quaternion at vertex index {int(np.argmax(zero))}")
+    # renderers normalise q in float32: its squared norm must be a normal, finite float32
+    norm = np.linalg.norm(out["quats"].astype(np.float64), axis=1)
+    bad = ~((norm >= QUAT_NORM[0]) & (norm <= QUAT_NORM[1]))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            path,
+            "rot_0",
+            f"{'zero ' if norm[i] == 0 else ''}quaternion of norm {norm[i]:.3g} at vertex index "
+            f"{i}: outside {QUAT_NORM[0]:.2g}..{QUAT_NORM[1]:.2g}, where normalising it in "
+            "float32 divides by zero or Inf",
+        )
     for key, limit, reason in _PLAUSIBLE:
         check_range(out[key], path, key, plausible=limit, reason=reason)
     return out
 
 
+QUAT_NORM = (float(np.sqrt(F32_TINY)), float(np.sqrt(np.finfo(np.float32).max)))
 _PLAUSIBLE = (
     ("means", 1e3, "metres from the origin"),
     ("log_scales", 20.0, "log standard deviations; e^20 m"),

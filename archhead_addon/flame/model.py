@@ -157,6 +157,7 @@ def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
         raise InputError(
             source, "kintree_table", f"expected (2, {N_JOINTS}), found {kintree.shape}"
         )
+    _check_rig(v, shapedirs, posedirs, jreg, weights, source)
     parents = _parents(kintree, source)
     n_total = shapedirs.shape[2]
     n_shape = min(300, n_total)
@@ -195,6 +196,48 @@ def model_from_arrays(arrays: dict, source: str = "<memory>") -> FlameModel:
         source=source,
         **opt,
     )
+
+
+SUM_TOLERANCE = 1e-3  # FLAME's rows sum to 1 within 1e-7 (float32)
+
+
+def _check_rig(v, shapedirs, posedirs, jreg, weights, source) -> None:
+    """What every FLAME-layout model is: a template of some size; blendshapes that move a
+    vertex by less than the head's size per unit coefficient (FLAME's: 1/40 of it); skinning
+    weights in 0..1 summing to 1 per vertex, joint regressor rows summing to 1 (a joint is
+    an average of vertices: anything else moves the joints when the head merely moves)."""
+    extent = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    if not extent > 1e-6:
+        raise InputError(source, "v_template", "every vertex at one point (a head has a size)")
+    for key, dirs in (("shapedirs", shapedirs), ("posedirs", posedirs)):
+        largest = float(np.abs(dirs).max(initial=0))
+        if largest > extent:
+            raise InputError(
+                source,
+                key,
+                f"displacement {largest:.3g} per unit coefficient is more than the template's "
+                f"whole size {extent:.3g} (FLAME's are 1/40 of it)",
+            )
+    tol = SUM_TOLERANCE
+    bad = (weights < -tol).any(axis=1) | (weights > 1 + tol).any(axis=1)
+    bad |= np.abs(weights.sum(axis=1) - 1) > tol
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            source,
+            "weights",
+            f"vertex {i}'s skinning weights {np.round(weights[i], 4).tolist()} are not in 0..1 "
+            "summing to 1",
+        )
+    sums = jreg.sum(axis=1)
+    bad = np.abs(sums - 1) > tol
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise InputError(
+            source,
+            "J_regressor",
+            f"joint {j}'s row sums to {sums[j]:.4g}, not 1 (a joint is an average of vertices)",
+        )
 
 
 def _parents(kintree: np.ndarray, source) -> np.ndarray:

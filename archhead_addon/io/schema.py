@@ -13,8 +13,10 @@ MAX_LIST_ITEMS = 1 << 20  # Python lists converted to arrays (pickled codes): el
 
 
 def numeric(value, path, key) -> np.ndarray:
-    """`value` as a float64 array: numbers, bools, real arrays and small lists of them.
-    Complex numbers, text and objects are refused, not cast (a cast drops or garbles them)."""
+    """`value` as a float64 array: numbers, real arrays and small lists of them. Complex
+    numbers, text and objects are refused, not cast (a cast drops or garbles them), and so are
+    booleans: no format stores a code, a camera or a count as true/false, and a cast makes
+    every value 0 or 1 (see `_refuse_bool`)."""
     if isinstance(value, list | tuple):
         _count_items(value, path, key)
     if isinstance(value, bool | int | float | np.number | np.bool_ | list | tuple):
@@ -22,13 +24,45 @@ def numeric(value, path, key) -> np.ndarray:
             value = np.asarray(value)
         except ValueError as exc:  # ragged lists: rows of different lengths
             raise InputError(path, key, "nested lists of unequal lengths, not an array") from exc
-    if not isinstance(value, np.ndarray) or value.dtype.kind not in "biuf":
+    _refuse_bool(value, path, key)
+    if not isinstance(value, np.ndarray) or value.dtype.kind not in "iuf":
         kind = value.dtype if isinstance(value, np.ndarray) else type(value).__name__
         raise InputError(path, key, f"not a real numeric array ({kind})")
+    value = flush_subnormal(value, path, key)
     try:
         return value.astype(np.float64)
     except OverflowError as exc:  # only huge Python ints get here
         raise InputError(path, key, f"values outside float64 range ({exc})") from exc
+
+
+F32_TINY = float(np.finfo(np.float32).tiny)
+
+
+def flush_subnormal(value: np.ndarray, path, key) -> np.ndarray:
+    """`value` with subnormal float32 values (nonzero, below 1.2e-38) set to 0, and an
+    InputWarning saying how many: no tracker or trainer writes one (an optimiser moves a
+    value by far more), they are what zeroed or flipped exponent bits leave."""
+    if value.dtype.kind != "f" or value.dtype.itemsize != 4:
+        return value
+    bad = (value != 0) & (np.abs(value) < F32_TINY)
+    if not bad.any():
+        return value
+    first = np.unravel_index(int(np.argmax(bad)), value.shape)
+    warn_input(
+        path,
+        key,
+        f"{int(bad.sum())} subnormal float32 value(s) (first {value[first]:.3g} at index "
+        f"{[int(i) for i in first]}): damaged exponent bits; set to 0",
+    )
+    return np.where(bad, np.float32(0), value)
+
+
+def _refuse_bool(value, path, key) -> None:
+    """InputError for booleans (a bool array, or True/False) where numbers are expected."""
+    if isinstance(value, bool | np.bool_) or (
+        isinstance(value, np.ndarray) and value.dtype.kind == "b"
+    ):
+        raise InputError(path, key, "booleans where numbers are expected (no reader casts them)")
 
 
 def _count_items(value, path, key, depth: int = 0, budget: list | None = None) -> None:
@@ -46,7 +80,8 @@ def _count_items(value, path, key, depth: int = 0, budget: list | None = None) -
 
 def integers(value, path, key) -> np.ndarray:
     """`value` as int64: integer arrays, or floats that are whole numbers within int64."""
-    if isinstance(value, np.ndarray) and value.dtype.kind in "iub":
+    _refuse_bool(value, path, key)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "iu":
         if value.dtype == np.uint64 and value.size and value.max() > np.iinfo(np.int64).max:
             raise InputError(path, key, "integers beyond int64")
         return value.astype(np.int64)

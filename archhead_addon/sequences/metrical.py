@@ -101,6 +101,8 @@ def _check_6d(d6: np.ndarray, path: Path, key: str, number: int) -> None:
     n1 = np.linalg.norm(a1, axis=1)
     b1 = a1 / np.maximum(n1, DEGENERATE_6D)[:, None]
     n2 = np.linalg.norm(a2 - (b1 * a2).sum(axis=1, keepdims=True) * b1, axis=1)
+    # relative to the second vector's length: at 1e30 rounding leaves a part of 1e14
+    n2 = n2 / np.maximum(np.linalg.norm(a2, axis=1), 1.0)
     for i in np.flatnonzero((n1 < DEGENERATE_6D) | (n2 < DEGENERATE_6D)):
         which = f" (rotation {i})" if len(d6) > 1 else ""
         raise InputError(

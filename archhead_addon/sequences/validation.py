@@ -29,6 +29,7 @@ TRAINED_CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translatio
                  "static_offset")  # fmt: skip
 MAX_IMAGE_SIDE = 1 << 16  # a larger image side is possible, but no video has one
 FPS_RANGE = (1.0, 1000.0)
+MAX_FRAME_ID = (1 << 31) - 1  # frame numbers are 32-bit in Blender, ffmpeg and the trackers
 
 
 def check_values(seq) -> None:
@@ -44,6 +45,12 @@ def check_values(seq) -> None:
             f"{seq.fps:g} frames per second is outside the plausible "
             f"{FPS_RANGE[0]:g}..{FPS_RANGE[1]:g}",
         )
+    ids = seq.frame_ids
+    if ids.size and (ids.min() < 0 or ids.max() > MAX_FRAME_ID):
+        bad = int(ids.min() if ids.min() < 0 else ids.max())
+        raise InputError(
+            seq.source, "frame_ids", f"frame id {bad} outside 0..{MAX_FRAME_ID} (32-bit frames)"
+        )
     if seq.image_size is not None:
         if max(seq.image_size) >= 1 << 63:
             raise InputError(seq.source, "image_size", f"{seq.image_size} is beyond int64")
@@ -58,6 +65,18 @@ def check_values(seq) -> None:
 
 
 def _check_camera(seq) -> None:
+    """Intrinsics of a pinhole camera (K upper triangular with last row 0 0 1, focal lengths
+    > 0), an invertible rigid w2c."""
+    K = seq.K
+    bad = (np.abs(K[:, 2] - [0, 0, 1]) > 1e-6).any(axis=1) | (np.abs(K[:, 1, 0]) > 1e-6)
+    if bad.any():
+        t = int(np.argmax(bad))
+        raise InputError(
+            seq.source,
+            "K",
+            f"not pinhole intrinsics at frame index {t}: {np.round(K[t], 4).tolist()} "
+            "(expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]])",
+        )
     focal = np.stack([seq.K[:, 0, 0], seq.K[:, 1, 1]], axis=1)
     bad = ~(np.abs(focal) > 1e-9).all(axis=1)
     if bad.any():

@@ -82,6 +82,8 @@ def _rows(arrays: dict, path: Path, frame=None, single=False) -> dict:
     for key, name, width in _POSES:
         rows[name] = get(arrays, key, path, (n, width), frame=frame, along="frame")
     shape = get(arrays, "shape", path, ("S",), (1, "S"), frame=frame)
+    if not shape.size:  # VHAP always fits FLAME's identity (300 coefficients)
+        raise InputError(path, "shape", "no identity coefficients (VHAP writes FLAME's 300)")
     rows["shape"] = np.repeat(shape.reshape(1, -1), n, axis=0)
     offset = get(arrays, "static_offset", path, (1, "V", 3), ("V", 3), frame=frame, default=None)
     rows["static_offset"] = None if offset is None else offset.reshape(-1, 3)
@@ -119,7 +121,10 @@ def _read_tracked_npz(path: Path, fps) -> Sequence:
     rows = _rows(arrays, path)
     n = len(rows["expr"])
     camera = {}
-    if "focal_length" in arrays and "image_size" in arrays:
+    if ("focal_length" in arrays) != ("image_size" in arrays):
+        key = "image_size" if "focal_length" in arrays else "focal_length"
+        raise InputError(path, key, "missing: VHAP writes focal_length and image_size together")
+    if "focal_length" in arrays:
         focal = float(get(arrays, "focal_length", path, (), (1,)).reshape(()))
         h, w = (int(v) for v in get(arrays, "image_size", path, (2,)))
         f = focal * max(h, w)
@@ -168,6 +173,27 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
             f"{len(cameras)} cameras {cameras}; using "
             f"camera {chosen} (pass camera= or --camera to choose)",
         )
+    seen: dict[tuple, tuple] = {}
+    paths: dict[object, int] = {}
+    for file, i, frame, _ in frames:
+        pair = (frame["timestep_index"], frame.get("camera_index", 0))
+        if pair in seen:  # two images of one camera at one instant: a frame listed twice
+            first = seen[pair]
+            raise InputError(
+                file,
+                f"frames[{i}]",
+                f"timestep {pair[0]} of camera {pair[1]} again (first at "
+                f"{first[0].name} frames[{first[1]}]): each timestep has one frame per camera",
+            )
+        seen[pair] = (file, i)
+        rel = frame.get("flame_param_path")
+        other = paths.setdefault(rel, pair[0]) if isinstance(rel, str) else pair[0]
+        if other != pair[0]:  # a timestep's codes are its own (its cameras share them)
+            raise InputError(
+                file,
+                f"frames[{i}].flame_param_path",
+                f"{rel!r:.60} is also timestep {other}'s: timestep {pair[0]} needs its own",
+            )
     selected: dict[int, tuple] = {}
     for entry in frames:
         if entry[2].get("camera_index", 0) == chosen:
