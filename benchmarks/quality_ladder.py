@@ -78,7 +78,8 @@ def _finished(run: Path) -> bool:
 
 def _evaluate(args, run: Path, split: str, frames: int | None, scored: Path) -> list[dict]:
     table = scored / "metrics.csv"
-    if not table.is_file():
+    # (scored again where an evaluate from before the face region wrote the table)
+    if not table.is_file() or "psnr_face" not in table.read_text().partition("\n")[0]:
         command = [sys.executable, "-m", "archhead_addon.evaluate", "--avatar"]
         command += [str(run / "avatar.npz"), "--data", str(args.data), "--out", str(scored)]
         command += ["--split", split, "--lods", args.lods, "--precisions", "fp32"]
@@ -98,12 +99,13 @@ def ladder(args) -> str:
     head = " | ".join(f"LOD {lod:g}" for lod in lods)
     lines = [
         f"| rung | frames scored | PSNR {head} | SSIM LOD 0 | ST-LPIPS LOD 0 | head PSNR {head} "
-        "| head SSIM LOD 0 | head ST-LPIPS LOD 0 | axis ratio > 10, LOD 0 / 1 |",
-        "|---" * (7 + 2 * len(lods)) + "|",
+        "| head SSIM LOD 0 | head ST-LPIPS LOD 0 | face PSNR LOD 0 / 1 "
+        "| axis ratio > 10, LOD 0 / 1 |",
+        "|---" * (8 + 2 * len(lods)) + "|",
     ]
     for name, what, frames, split, scored in RUNGS:
         if not _finished(runs[frames]):
-            lines.append(f"| {name}: {what} | {split} | not run |" + " |" * (4 + 2 * len(lods)))
+            lines.append(f"| {name}: {what} | {split} | not run |" + " |" * (5 + 2 * len(lods)))
             continue
         rows = _evaluate(args, runs[frames], split, scored or frames, args.out / f"eval_{name}")
         by_lod = {float(r["lod"]): r for r in rows}
@@ -114,6 +116,7 @@ def ladder(args) -> str:
             + f" | {float(first['ssim']):.3f} | {float(first['st_lpips']):.3f} | "
             + " | ".join(f"{float(by_lod[lod]['psnr_head']):.2f}" for lod in lods)
             + f" | {float(first['ssim_head']):.3f} | {float(first['st_lpips_head']):.3f} | "
+            f"{float(first['psnr_face']):.2f} / {float(last['psnr_face']):.2f} | "
             f"{100 * float(first['needles']):.1f} % / {100 * float(last['needles']):.1f} % |"
         )
     table = "\n".join(lines)

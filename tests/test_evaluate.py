@@ -171,6 +171,13 @@ def test_evaluation_writes_tables_plot_and_images(tiny_subject, avatar_file, tmp
     assert float(rows0["psnr"]) == pytest.approx(
         10 * math.log10(1 / np.mean((np.clip(image, 0, 1) - item["image"]) ** 2)), rel=1e-4
     )
+    # the face PSNR (the one test frame) over the face's pixels only
+    face = item["face"]
+    assert len(test) == 1 and face.any() and (item["head"] > face).any()  # inside the head
+    assert float(rows0["psnr_face"]) == pytest.approx(
+        10 * math.log10(1 / np.mean(((np.clip(image, 0, 1) - item["image"])[face]) ** 2)),
+        rel=1e-4,
+    )
 
     montage = np.asarray(Image.open(out / "lods.png"))
     assert montage.shape == (SIZE, 6 * SIZE, 3)  # truth, then five levels

@@ -11,7 +11,7 @@ from test_dataset import CODES, make_data, posed, write_png
 
 from archhead_addon.evaluate.metrics import psnr, ssim
 from archhead_addon.flame import load_model
-from archhead_addon.flame.regions import JAW_JOINT, NECK_JOINT, head_vertices
+from archhead_addon.flame.regions import JAW_JOINT, NECK_JOINT, face_vertices, head_vertices
 from archhead_addon.io.errors import InputError
 from archhead_addon.sequences.demo import demo_sequence
 from archhead_addon.track.head_mask import HAIR_REACH, head_and_neck_masks, region
@@ -38,6 +38,22 @@ def test_the_head_keeps_face_chin_and_eyes_and_drops_the_lower_neck(model):
     assert 0.05 < (~head).mean() < 0.4
 
 
+def test_the_face_is_the_heads_front_below_the_forehead(model):
+    """Eyes, nose tip, mouth and chin are in it; the ears, the back of the head and the
+    crown are not."""
+    face, head = face_vertices(model), head_vertices(model)
+    v = model.v_template
+    assert not (face & ~head).any()
+    assert face[model.weights[:, 3] > 0.99].all()  # the eyeballs
+    assert face[np.argmax(v[:, 2])]  # the nose tip, the most forward point
+    jaw = model.weights[:, JAW_JOINT] > 0.5
+    assert face[jaw & (v[:, 2] > 0.06)].all()  # the chin and the lower lip
+    assert not face[v[:, 1] > v[:, 1].max() - 0.05].any()  # the crown
+    assert not face[np.argmax(np.abs(v[:, 0]))]  # the widest point: an ear
+    assert not face[head & (v[:, 2] < (model.j_regressor @ v)[NECK_JOINT, 2])].any()  # the back
+    assert 0.3 < face.sum() / head.sum() < 0.8
+
+
 def _frame(model, seq, t, size):
     """The frame's regions seen from twice as far (the demo's head fills its frame)."""
     K = seq.K[t] * [[0.5], [0.5], [1]]
@@ -52,6 +68,8 @@ def test_regions_nest_and_the_mask_adds_hair_above_not_below(model):
     head, mesh = found.head > 0.5, found.mesh > 0.5
     assert head.any() and (mesh & ~head).any()
     assert not (head & ~mesh).any() and not (found.parts.astype(bool) & ~mesh).any()
+    face = found.face > 0.5
+    assert face.any() and (head & ~face).any() and not (face & ~head).any()
     inside = region(found.head, found.mesh)
     assert (inside | ~mesh).all()  # the whole mesh is kept
     rows = np.flatnonzero(head.any(axis=1))

@@ -32,6 +32,7 @@ class LodResult:
     psnr_head: float = float("nan")
     ssim_head: float = float("nan")
     st_lpips_head: float = float("nan")
+    psnr_face: float = float("nan")  # over the face (flame.regions): where hair rarely falls
     needles: float = 0.0  # the share of Gaussians with an axis ratio above 10 (render.py)
 
     @property
@@ -64,7 +65,9 @@ def evaluate_lods(
                 )
                 if on_frame is not None:
                     on_frame(lod, precision, i, out.rgb)
-                scores.append(_scores(out.rgb, item["image"], item.get("head"), perceptual))
+                scores.append(
+                    _scores(out.rgb, item["image"], item.get("head"), item.get("face"), perceptual)
+                )
                 decode.append(out.decode_ms)
                 splat.append(out.splat_ms)
                 needles.append(out.needles)
@@ -85,18 +88,26 @@ def evaluate_lods(
     return results
 
 
-def _scores(rgb: np.ndarray, target: np.ndarray, head, perceptual) -> tuple[float, ...]:
-    """L1, PSNR, SSIM, ST-LPIPS over the frame, then PSNR, SSIM and ST-LPIPS over `head`
-    (NaN without one). The head's ST-LPIPS compares the truth with the render pasted into it
-    there, so what lies outside the head does not count."""
+def _scores(rgb: np.ndarray, target: np.ndarray, head, face, perceptual) -> tuple[float, ...]:
+    """L1, PSNR, SSIM, ST-LPIPS over the frame, then PSNR, SSIM and ST-LPIPS over `head`, then
+    PSNR over `face` (NaN for a region that is absent or empty). The head's ST-LPIPS compares
+    the truth with the render pasted into it there, so what lies outside the head does not
+    count."""
     pred, gt = torch.from_numpy(np.clip(rgb, 0, 1)), torch.from_numpy(target)
     whole = (l1(pred, gt), psnr(pred, gt), ssim(pred, gt), _perceptual(perceptual, pred, gt))
-    if head is None or not head.any():
-        return (*whole, np.nan, np.nan, np.nan)
-    region = torch.from_numpy(np.asarray(head, np.float32))
-    pasted = region[..., None] * pred + (1 - region[..., None]) * gt
-    inside = (psnr(pred, gt, region), ssim(pred, gt, region), _perceptual(perceptual, pasted, gt))
-    return (*whole, *inside)
+    inside = (np.nan, np.nan, np.nan)
+    if head is not None and head.any():
+        region = torch.from_numpy(np.asarray(head, np.float32))
+        pasted = region[..., None] * pred + (1 - region[..., None]) * gt
+        inside = (
+            psnr(pred, gt, region),
+            ssim(pred, gt, region),
+            _perceptual(perceptual, pasted, gt),
+        )
+    in_face = np.nan
+    if face is not None and face.any():
+        in_face = psnr(pred, gt, torch.from_numpy(np.asarray(face, np.float32)))
+    return (*whole, *inside, in_face)
 
 
 def _perceptual(perceptual, pred: torch.Tensor, gt: torch.Tensor) -> float:

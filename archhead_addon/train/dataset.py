@@ -331,6 +331,7 @@ class FrameDataset:
             "mask": np.clip(resize(mask.astype(np.float32), self.size), 0, 1),
             "parts": parts.astype(np.float32),
             "head": regions.head,
+            "face": regions.face > 0.5,  # bool: a cached training set holds one per frame
             "K": self.K[t].astype(np.float32),
             "w2c": seq.w2c[t].astype(np.float32),
             "codes": {k: v.astype(np.float32) for k, v in codes.items()},

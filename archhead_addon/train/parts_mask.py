@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..flame.model import PART_OTHER, FlameModel
-from ..flame.regions import head_faces
+from ..flame.regions import face_faces, head_faces
 
 NEAR = 1e-4  # metres; faces with a vertex closer to the camera plane are skipped
 _MAX_PAIRS = 1 << 22  # (face, pixel) candidates per batch, bounds the memory (~200 MB)
@@ -113,12 +113,14 @@ class SurfaceRegions:
     parts: np.ndarray  # the eye/mouth mask B
     head: np.ndarray  # the head without its neck (flame.regions)
     mesh: np.ndarray  # the whole mesh, head and neck
+    face: np.ndarray  # the face, the head's front below its forehead (flame.regions)
 
 
 def surface_regions(
     model: FlameModel, vertices: np.ndarray, K: np.ndarray, w2c: np.ndarray, size: tuple[int, int]
 ) -> SurfaceRegions:
-    """B, the head and the whole mesh from one rasterization (occlusion exact at centres)."""
+    """B, the head, the whole mesh and the face from one rasterization (occlusion exact at
+    centres)."""
     face_at, bary = rasterize(
         np.asarray(vertices, np.float64),
         model.faces,
@@ -134,4 +136,5 @@ def surface_regions(
         labelled = (model.vertex_parts != PART_OTHER)[model.faces[nearest]]
         parts = ((bary * labelled).sum(axis=-1) > 0.5) & hit
     head = head_faces(model)[nearest] & hit
-    return SurfaceRegions(*(m.astype(np.float32) for m in (parts, head, hit)))
+    face = face_faces(model)[nearest] & hit
+    return SurfaceRegions(*(m.astype(np.float32) for m in (parts, head, hit, face)))
