@@ -20,6 +20,14 @@ from archhead_addon.sequences import (
 )
 
 
+def in_front(translation: np.ndarray) -> np.ndarray:
+    """`translation` (T,3) with z folded to 0.5 m or more: the head in front of an identity
+    camera (OpenCV: z forward), as validation requires of a sequence with cameras."""
+    translation = np.array(translation, dtype=np.float64)
+    translation[:, 2] = 0.5 + np.abs(translation[:, 2])
+    return translation
+
+
 def make_sequence(n=5, n_shape=10, n_expr=7, camera=True, seed=0, **changes) -> Sequence:
     rng = np.random.default_rng(seed)
     fields = {
@@ -29,7 +37,7 @@ def make_sequence(n=5, n_shape=10, n_expr=7, camera=True, seed=0, **changes) -> 
         "neck": rng.normal(size=(n, 3)),
         "eyes": rng.normal(size=(n, 6)),
         "rotation": rng.normal(size=(n, 3)),
-        "translation": rng.normal(size=(n, 3)),
+        "translation": in_front(rng.normal(size=(n, 3))),
         "fps": 30.0,
         "frame_ids": np.arange(n) * 2 + 7,
         "source": "memory.npz",

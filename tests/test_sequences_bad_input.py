@@ -7,6 +7,7 @@ import re
 import numpy as np
 import pytest
 import torch
+from test_sequences import make_sequence
 from test_sequences_formats import (
     clip_dict,
     write_clip,
@@ -352,3 +353,36 @@ def test_metrical_6d_of_huge_parallel_vectors(tmp_path):
     frame = tmp_path / "m" / "checkpoint" / "00000.frame"
     _edit_frame(frame, lambda f: f["flame"].update(jaw=np.full((1, 6), 1e30, np.float32)))
     _raises(frame, "flame.jaw", "degenerate 6D rotation", tmp_path / "m")
+
+
+def test_head_behind_the_camera(tmp_path):
+    """A tracked head is in front of its camera: a translation that puts it behind (a
+    canonical npz's, 0.4 m behind its identity camera on one frame) or a camera turned away
+    from it (metrical-tracker's `opencv.t`, the head pose, negated) is refused, naming the key,
+    the frame index and the depth."""
+    path = tmp_path / "behind.npz"
+    write_canonical(make_sequence(), path)
+    translation = np.load(path)["translation"]
+    translation[3] = [0.0, 0.1, -0.4]
+    _edit_npz(path, translation=translation)
+    _raises(
+        path,
+        "translation",
+        r"the head is behind the camera at frame index 3 \(frame id 13, "
+        r"depth -0\.4 m\)",
+        path,
+    )
+
+    write_metrical(tmp_path / "m")
+    frame = tmp_path / "m" / "checkpoint" / "00002.frame"
+
+    def edit(f):
+        f["opencv"]["t"] *= -1
+
+    _edit_frame(frame, edit)
+    _raises(
+        tmp_path / "m",
+        "w2c",
+        r"the head is behind the camera at frame index 2 .*depth -1\.1 m",
+        tmp_path / "m",
+    )

@@ -33,7 +33,8 @@ MAX_FRAME_ID = (1 << 31) - 1  # frame numbers are 32-bit in Blender, ffmpeg and 
 
 
 def check_values(seq) -> None:
-    """Ranges of every array and of fps and image_size; the camera's matrices invertible."""
+    """Ranges of every array and of fps and image_size; the camera's matrices invertible and
+    the head in front of the camera."""
     for key, (plausible, reason) in PLAUSIBLE.items():
         value = getattr(seq, key)
         if value is not None:
@@ -105,6 +106,28 @@ def _check_camera(seq) -> None:
             "w2c",
             f"rotation part is not orthonormal at frame index {t} "
             f"(error {error[t]:.2g}): scaled or sheared cameras render distorted",
+        )
+    _check_in_front(seq)
+
+
+def _check_in_front(seq) -> None:
+    """The head (FLAME's root: `translation`, the global rotation turns about it) is in front
+    of its camera on every frame: depth (camera-space z, OpenCV) > 0. A head behind the camera
+    is no tracking; it renders nothing. The key blamed is `translation` where one moved the head
+    there from a world origin (FLAME's rest head) not behind the camera, `w2c` otherwise (no
+    translation, as where the camera carries the head pose, or the origin behind it too)."""
+    root = np.einsum("tij,tj->ti", seq.w2c[:, :3, :3], seq.translation) + seq.w2c[:, :3, 3]
+    depth = root[:, 2]
+    bad = ~(depth > 0)
+    if bad.any():
+        t = int(np.argmax(bad))
+        moved = np.any(seq.translation[t] != 0) and seq.w2c[t, 2, 3] >= 0
+        key = "translation" if moved else "w2c"
+        raise InputError(
+            seq.source,
+            key,
+            f"the head is behind the camera at frame index {t} (frame id {seq.frame_ids[t]}, "
+            f"depth {depth[t]:.3g} m): a tracked head is in front of its camera (depth > 0)",
         )
 
 
