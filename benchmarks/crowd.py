@@ -140,7 +140,7 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
     import bpy
 
     from archhead_blender import api
-    from archhead_blender.handlers import refresh_scene
+    from archhead_blender.handlers import refresh_scene, resume, suspend
 
     api.enable_addon()
     folder = api.scratch_folder("archhead_crowd_")
@@ -179,8 +179,6 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
     for s in sessions:
         s.lod_override = None
     # Blender's own part of a frame change (rigs, shape keys, drivers): the add-on paused
-    from archhead_blender.handlers import resume, suspend
-
     suspend()
     try:
         blender_ms = statistics.median(frame_change() for _ in range(frames))

@@ -407,27 +407,30 @@ def state_config(state: dict, where=None) -> TrainConfig:
     return TrainConfig.read(json.loads(state["config"]), where)
 
 
-def _as_tensors(value):
-    """The checked state's numpy arrays as CPU tensors, through dicts, lists and tuples."""
-    if isinstance(value, np.ndarray):
-        return torch.from_numpy(value)
+def _map_leaves(fn, value):
+    """fn of every leaf of a state tree, through dicts, lists and tuples."""
     if isinstance(value, dict):
-        return {k: _as_tensors(v) for k, v in value.items()}
+        return {k: _map_leaves(fn, v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return type(value)(_as_tensors(v) for v in value)
-    return value
+        return type(value)(_map_leaves(fn, v) for v in value)
+    return fn(value)
+
+
+def _as_tensors(value):
+    """The checked state's numpy arrays as CPU tensors."""
+    return _map_leaves(lambda a: torch.from_numpy(a) if isinstance(a, np.ndarray) else a, value)
 
 
 def _numpy_tree(value):
     """The state as state_file.py reads it back (CPU tensors as numpy views, bfloat16 as
     float32), for its checksum."""
-    if isinstance(value, torch.Tensor):
-        return (value.float() if value.dtype == torch.bfloat16 else value).numpy()
-    if isinstance(value, dict):
-        return {k: _numpy_tree(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return type(value)(_numpy_tree(v) for v in value)
-    return value
+
+    def leaf(t):
+        if not isinstance(t, torch.Tensor):
+            return t
+        return (t.float() if t.dtype == torch.bfloat16 else t).numpy()
+
+    return _map_leaves(leaf, value)
 
 
 def _tensor(array):
@@ -442,10 +445,4 @@ def _offset(tensor):
 
 def _to_cpu(value):
     """A copy of an optimizer state dict with every tensor on the CPU."""
-    if isinstance(value, torch.Tensor):
-        return value.detach().cpu()
-    if isinstance(value, dict):
-        return {k: _to_cpu(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return type(value)(_to_cpu(v) for v in value)
-    return value
+    return _map_leaves(lambda t: t.detach().cpu() if isinstance(t, torch.Tensor) else t, value)
