@@ -20,6 +20,7 @@ from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.avatar.culling import REACH_PAD, SIGMAS, ViewFrustum
 from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.lod import resolution_for_lod
+from archhead_addon.avatar.point_attributes import point_attributes
 from archhead_addon.avatar.runtime import LEVEL_BYTES, AvatarRuntime
 from archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
 from archhead_addon.flame.model import FlameModel, load_model
@@ -33,6 +34,23 @@ PRECISION = "fp32"
 # Per-resolution tables of a shared runtime: room for one per head, each at its own resolution
 # (a full-size avatar's S = 256 takes 49 MB), up to every resolution's (2.5 GB full size).
 LEVEL_BYTES_PER_HEAD, LEVEL_BYTES_MAX = 48 << 20, 3 << 30
+
+
+@dataclass
+class CachedFrame:
+    """A memory cache entry: the frame, and its point attributes without a camera (what its
+    display writes), made once when it enters the cache, so that a cached frame shown again
+    costs only its write. Its bytes count both (position and rotation are the frame's own
+    arrays)."""
+
+    splat: SplatFrame
+    points: dict
+
+    @property
+    def nbytes(self) -> int:
+        own = (self.splat.means, self.splat.quats)
+        extra = sum(a.nbytes for a in self.points.values() if not any(a is b for b in own))
+        return self.splat.nbytes + extra
 
 
 @dataclass
@@ -136,12 +154,34 @@ class SharedDecoder:
         return frame_key(self.digest, digest, resolution_for_lod(lod)[0])
 
     def cached(self, key: str) -> SplatFrame | None:
-        splat = self.memory.get(key)
-        if splat is None and self.disk is not None:
+        entry = self._entry(key)
+        return None if entry is None else entry.splat
+
+    def _entry(self, key: str) -> CachedFrame | None:
+        entry = self.memory.get(key)
+        if entry is None and self.disk is not None:
             splat = self.disk.get(key)
             if splat is not None:
-                self.memory.put(key, splat)
-        return splat
+                entry = self._keep(key, splat)
+        return entry
+
+    def _keep(self, key: str, splat: SplatFrame) -> CachedFrame:
+        entry = CachedFrame(splat, point_attributes(splat, None, self.colour_space))
+        self.memory.put(key, entry)
+        return entry
+
+    @property
+    def colour_space(self) -> str:
+        return self.runtime.config.colour_space
+
+    def points(self, key: str, splat: SplatFrame, view_from=None) -> dict:
+        """`point_attributes` of a frame that `frame` returned under `key`: a cached whole
+        frame's without a camera come from its cache entry."""
+        if view_from is None:
+            entry = self.memory.get(key)
+            if entry is not None and entry.splat is splat:
+                return entry.points
+        return point_attributes(splat, view_from, self.colour_space)
 
     def frame(
         self,
@@ -173,7 +213,7 @@ class SharedDecoder:
             splat = SplatFrame.from_gaussians(gaussians)
             if self.disk is not None:
                 self.disk.put(key, splat)
-            self.memory.put(key, splat)
+            self._keep(key, splat)
         return key, splat
 
 
@@ -231,14 +271,26 @@ def _source(obj) -> tuple:
     of every avatar (the file's digest and the identity are read only when it changes)."""
     s = obj.archhead_avatar
     path = bpy.path.abspath(s.checkpoint)
+    head = s.head.session_uid if s.head is not None else None
+    return (path, file_stamp(path), s.identity, head, flame_model_path(), s.disk_cache,
+            bpy.path.abspath(s.cache_dir), s.view_dependent, s.memory_mb)  # fmt: skip
+
+
+def file_stamp(path: str) -> tuple | None:
+    """(size, modification time) of a file, or None where it cannot be read. Within one
+    refresh of the scene (`STATE.file_stamps` set) each file is asked once: a crowd of heads
+    shares one checkpoint."""
+    memo = STATE.file_stamps
+    if memo is not None and path in memo:
+        return memo[path]
     try:
         stat = Path(path).stat()
         stamp = (stat.st_size, stat.st_mtime_ns)
     except OSError:
         stamp = None
-    head = s.head.session_uid if s.head is not None else None
-    return (path, stamp, s.identity, head, flame_model_path(), s.disk_cache,
-            bpy.path.abspath(s.cache_dir), s.view_dependent, s.memory_mb)  # fmt: skip
+    if memo is not None:
+        memo[path] = stamp
+    return stamp
 
 
 def decoder_key(obj) -> tuple:

@@ -18,7 +18,6 @@ import bpy
 from bpy.app.handlers import persistent
 
 from archhead_addon.avatar.frame_selection import held_frame
-from archhead_addon.avatar.point_attributes import point_attributes
 from archhead_addon.io.errors import InputError
 from archhead_addon.splat.frame import SplatFrame
 
@@ -91,7 +90,7 @@ def refresh_avatar(obj, scene, depsgraph, lod: float | None = None) -> bool:
     state = (key, None if view_from is None else tuple(view_from.round(6)))
     if state == avatar.shown:
         return False
-    write_points(obj, point_attributes(splat, view_from, avatar.runtime.config.colour_space))
+    write_points(obj, avatar.shared.points(key, splat, view_from))
     avatar.shown = state
     return True
 
@@ -100,6 +99,14 @@ def refresh_scene(scene, depsgraph) -> None:
     prune_sessions()  # an avatar deleted or purged since the last update frees its memory
     if STATE.suspended:
         return
+    STATE.file_stamps = {}  # each checkpoint file is asked for its time once in this pass
+    try:
+        _refresh_avatars(scene, depsgraph)
+    finally:
+        STATE.file_stamps = None
+
+
+def _refresh_avatars(scene, depsgraph) -> None:
     lods = None
     if scene_budget(scene):
         try:

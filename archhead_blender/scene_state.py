@@ -52,21 +52,50 @@ def _expression_slots(names: tuple, n_expr: int) -> np.ndarray:
     return slots
 
 
+# Raw pose and keys -> codes remembered per head: a frame shown again (playback of decoded
+# frames, a render after Decode Frames) skips the conversion to axis-angles, which costs more
+# than the rest of showing a cached frame. Each entry is about 2 KB.
+CODES_MEMO = 4096
+
+
 def frame_codes(head, depsgraph, joint_dirs: np.ndarray) -> FrameCodes:
     rig = head_rig(head).evaluated_get(depsgraph)
-    basis = np.array([rig.pose.bones[name].matrix_basis for name in JOINT_NAMES])
+    basis = joint_basis(rig)
     n_expr = min(int(head.get("archhead_n_expr", 0)), len(joint_dirs))
     expr = expression_values(head, depsgraph, n_expr)
-    # A head whose pose and keys did not change since it was last read gets the same codes
-    # back: the conversion to axis-angles costs more than reading them.
     raw = (basis.tobytes(), expr.tobytes(), id(joint_dirs))
-    memo = STATE.frame_codes.get(head.session_uid)
-    if memo is not None and memo[0] == raw:
-        return memo[1]
-    rotations = basis[:, :3, :3] / np.linalg.norm(basis[:, :3, :3], axis=1, keepdims=True)
-    codes = codes_from_rig(rotations, basis[0, :3, 3], expr, joint_dirs)
-    STATE.frame_codes[head.session_uid] = (raw, codes)
+    memo = STATE.frame_codes.setdefault(head.session_uid, {})
+    codes = memo.get(raw)
+    if codes is None:
+        rotations = basis[:, :3, :3] / np.linalg.norm(basis[:, :3, :3], axis=1, keepdims=True)
+        codes = codes_from_rig(rotations, basis[0, :3, 3], expr, joint_dirs)
+        if len(memo) >= CODES_MEMO:
+            memo.clear()
+        memo[raw] = codes
     return codes
+
+
+def joint_basis(rig) -> np.ndarray:
+    """(5,4,4) float32: the local matrices (matrix_basis) of the FLAME joints' bones, in
+    JOINT_NAMES order, read in one bulk call. KeyError names a missing bone."""
+    bones = rig.pose.bones
+    flat = np.empty(len(bones) * 16, np.float32)
+    bones.foreach_get("matrix_basis", flat)  # column-major, as Blender stores matrices
+    return flat.reshape(-1, 4, 4).transpose(0, 2, 1)[_joint_slots(tuple(bones.keys()))]
+
+
+def _joint_slots(names: tuple) -> np.ndarray:
+    """Where JOINT_NAMES sit among a rig's pose bones `names`, kept per name list."""
+    slots = STATE.joint_slots.get(names)
+    if slots is None:
+        index = {name: j for j, name in enumerate(names)}
+        missing = [name for name in JOINT_NAMES if name not in index]
+        if missing:
+            raise KeyError(f"the rig has no bone '{missing[0]}'")
+        if len(STATE.joint_slots) > 64:
+            STATE.joint_slots.clear()
+        slots = STATE.joint_slots[names] = np.array([index[name] for name in JOINT_NAMES])
+    return slots
 
 
 def avatar_lod(obj, depsgraph) -> float:

@@ -35,14 +35,19 @@ class RuntimeState:
     retired: dict[str, Any] = field(default_factory=dict)
     # (path, size, mtime) -> the checkpoint file's digest: read once for a crowd of heads.
     file_digests: dict[tuple, str] = field(default_factory=dict)
+    # Within one refresh of the scene (handlers.refresh_scene), path -> (size, mtime) of the
+    # checkpoint files asked for; None outside it (avatar_session.file_stamp).
+    file_stamps: dict[str, Any] | None = None
     # Point object session_uid -> the last error of its refresh (shown in the N-panel).
     errors: dict[int, str] = field(default_factory=dict)
     # Point object session_uid -> {"done", "total", "cancel"} of a modal decode.
     decode_progress: dict[int, dict] = field(default_factory=dict)
-    # (shape-key names, n_expr) -> where the expression keys sit (scene_state); and a head's
-    # session_uid -> its last (raw pose and keys, FrameCodes): the handlers' fast path.
+    # (shape-key names, n_expr) -> where the expression keys sit, pose-bone names -> where
+    # the joints' bones sit (scene_state); and a head's session_uid -> {raw pose and keys:
+    # FrameCodes}: the handlers' fast path.
     expression_slots: dict[tuple, Any] = field(default_factory=dict)
-    frame_codes: dict[int, tuple] = field(default_factory=dict)
+    joint_slots: dict[tuple, Any] = field(default_factory=dict)
+    frame_codes: dict[int, dict] = field(default_factory=dict)
     # How many objects bpy.data held when the sessions were last checked against them.
     objects_seen: int = -1
     # Nesting depth of bulk work that moves frames itself (handlers pause meanwhile).

@@ -250,3 +250,53 @@ def test_the_texel_count_fit_is_exact_at_both_ends_and_close_between(
         true = len(raster.table(size).texel)
         fit = crowd.gaussians_at(lod, n_max, cfg.s_max, cfg.s_min, n_min)
         assert fit == pytest.approx(true, rel=0.03 if 0 < lod < 1 else 1e-9)
+
+
+def test_a_cached_frame_shown_again_reuses_its_codes_and_points(
+    tmp_path, demo_scene, tiny_checkpoint
+):
+    """Playback of decoded frames: the handler finds each frame's codes by the rig's raw
+    pose and keys and writes the points kept with the cache entry, and what it writes is
+    what the frame's Gaussians give; a pose edited by hand still reaches the codes."""
+    session = _module("avatar_session").session
+    scene_state = _module("scene_state")
+    point_instances = _module("point_instances")
+    from archhead_addon.avatar.point_attributes import point_attributes
+
+    head, _ = demo_scene(tmp_path)
+    _, rig, obj = _avatar_set(head, tiny_checkpoint)
+    scene = bpy.context.scene
+    _module("decoding").decode_frames(bpy.context, obj, [2, 3])
+    avatar = session(obj)
+    convert = scene_state.codes_from_rig
+    calls = []
+    scene_state.codes_from_rig = lambda *a: calls.append(1) or convert(*a)
+    try:
+        for f in (2, 3, 2):
+            scene.frame_set(f)
+        assert not calls, "a decoded frame's pose was converted to codes again"
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        key, splat = _module("handlers").frame_to_show(obj, scene, depsgraph)
+        assert key == avatar.decoded[2].key
+        kept = avatar.shared.points(key, splat)
+        assert kept is avatar.shared.points(key, splat)  # the entry's, not made again
+        written = point_instances.read_points(obj)
+        fresh = point_attributes(splat, None, avatar.runtime.config.colour_space)
+        for name, array in fresh.items():
+            np.testing.assert_array_equal(written[name], array.reshape(written[name].shape))
+
+        # the joints' bones read in one call are the bones' own matrices
+        bones = rig.evaluated_get(depsgraph).pose.bones
+        expected = np.array([np.array(bones[n].matrix_basis) for n in scene_state.JOINT_NAMES])
+        np.testing.assert_array_equal(
+            scene_state.joint_basis(rig.evaluated_get(depsgraph)), expected
+        )
+
+        # a hand-posed jaw is a new raw pose: converted, and a new frame shown
+        rig.pose.bones["jaw"].rotation_mode = "XYZ"
+        rig.pose.bones["jaw"].rotation_euler.x += 0.2
+        bpy.context.view_layer.update()
+        assert calls
+        assert avatar.shown[0] != key
+    finally:
+        scene_state.codes_from_rig = convert

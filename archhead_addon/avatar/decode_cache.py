@@ -33,20 +33,21 @@ def frame_key(avatar_digest: str, codes_digest: str, lod: float) -> str:
 
 
 class MemoryCache:
-    """Least recently used frames out once their bytes pass the budget."""
+    """Least recently used frames out once their bytes pass the budget. A value is a
+    SplatFrame or anything else with `nbytes` (a frame with what its display derives)."""
 
     def __init__(self, max_bytes: int):
         self.max_bytes = int(max_bytes)
-        self._frames: OrderedDict[str, SplatFrame] = OrderedDict()
+        self._frames: OrderedDict = OrderedDict()
         self.nbytes = 0
 
-    def get(self, key: str) -> SplatFrame | None:
+    def get(self, key: str):
         frame = self._frames.get(key)
         if frame is not None:
             self._frames.move_to_end(key)
         return frame
 
-    def put(self, key: str, frame: SplatFrame) -> None:
+    def put(self, key: str, frame) -> None:
         if key in self._frames:
             self.nbytes -= self._frames.pop(key).nbytes
         self._frames[key] = frame
