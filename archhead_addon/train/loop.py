@@ -287,18 +287,22 @@ class Trainer:
         lods = self.lods(step)
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
-        sums: dict[str, float] = {}
+        sums: dict[str, torch.Tensor] = {}
         lpips_weights = self.lpips_weights(step, len(lods))
         reference = None
         if self.loss.perceptual is not None and any(lpips_weights):
             reference = self.loss.perceptual_reference(frame.image)
         for lod, lpips_weight in zip(lods, lpips_weights, strict=True):
             rgb, g = self.render(frame, lod, codes)
-            total, terms = self.loss(rgb, frame.image, frame.parts, g, lod, lpips_weight, reference)
+            total, terms = self.loss.terms(
+                rgb, frame.image, frame.parts, g, lod, lpips_weight, reference
+            )
             (total / len(lods)).backward()
             for k, v in terms.items():
                 sums[k] = sums.get(k, 0.0) + v / len(lods)
         self.optimizer.step()
+        # the step's one read of device values (each term's own would sync a GPU each time)
+        sums = dict(zip(sums, torch.stack(list(sums.values())).tolist(), strict=True))
         seconds = time.perf_counter() - start
         self.step += 1
         self.elapsed += seconds

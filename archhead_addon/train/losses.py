@@ -69,7 +69,12 @@ class TrainingLoss:
     def __init__(self, weights: LossWeights, perceptual=None):
         self.weights, self.perceptual = weights, perceptual
 
-    def __call__(
+    def __call__(self, *args, **kwargs) -> tuple[torch.Tensor, dict[str, float]]:
+        """`terms`, with the terms as floats."""
+        total, terms = self.terms(*args, **kwargs)
+        return total, {k: float(v) for k, v in terms.items()}
+
+    def terms(
         self,
         pred: torch.Tensor,
         target: torch.Tensor,
@@ -78,9 +83,10 @@ class TrainingLoss:
         lod: float,
         lpips_weight: float | None = None,
         reference=None,
-    ) -> tuple[torch.Tensor, dict[str, float]]:
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """(total, terms): pred and target (H,W,3) in [0, 1], parts (H,W). The terms are the
-        unweighted values of each part, and the total, as floats for logging.
+        unweighted values of each part, and the total, detached 0-d tensors for logging (on
+        the training device: reading them is a host sync, which a step does once).
         `lpips_weight` replaces λ_lpips for this call (0 leaves the perceptual term out);
         `reference`, the target's `perceptual_reference`, saves computing it again."""
         w = self.weights
@@ -106,7 +112,7 @@ class TrainingLoss:
             terms["lpips"] = self.perceptual.compare(_nchw(pred), reference)[0]
             total = total + lpips_weight * terms["lpips"]
         terms["total"] = total
-        return total, {k: float(v.detach()) for k, v in terms.items()}
+        return total, {k: v.detach() for k, v in terms.items()}
 
     def perceptual_reference(self, target: torch.Tensor):
         """The perceptual term's features of a target image (H,W,3), to share between the
