@@ -54,8 +54,8 @@ def _expression_slots(names: tuple, n_expr: int) -> np.ndarray:
 
 # Raw pose and keys -> codes remembered per head: a frame shown again (playback of decoded
 # frames, a render after Decode Frames) skips the conversion to axis-angles, which costs more
-# than the rest of showing a cached frame. Each entry is about 2 KB.
-CODES_MEMO = 4096
+# than the rest of showing a cached frame. An entry is about 2 KB: at most 2 MB a head.
+CODES_MEMO = 1024
 
 
 def frame_codes(head, depsgraph, joint_dirs: np.ndarray) -> FrameCodes:
