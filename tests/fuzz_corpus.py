@@ -1078,6 +1078,265 @@ def _vhap_more_cases(transforms: dict) -> list[tuple[str, str, bytes]]:
     return [(label, "transforms.json", data) for label, data in cases]
 
 
+# ------------------------------------------------------------------------- held-out kinds
+# Kinds of file issue 33's held-out corpus made and the cases above did not: legal
+# containers numpy, zipfile and torch write otherwise (npy 2.0 headers, Fortran order,
+# big-endian arrays, deflated members, data descriptors, zip64 records, pickle protocol 5,
+# OrderedDicts, scipy.sparse matrices), and values each reader let through: integers beyond
+# float's range in JSON (an OverflowError), a PLY count of 5000 digits, SH of no degree,
+# skewed or mirrored cameras, Adam settings of a training state, a sparse matrix whose indptr
+# claims 2^40 values. Labels start "held-out error:" (to be refused) or "held-out same:" (to
+# be read as the seed is); tests/test_fuzz_inputs.py checks each.
+
+
+def _zip_members(members, method=zipfile.ZIP_STORED, stream=False, zip64=False) -> bytes:
+    """A zip of (name, bytes); `stream`: written unseekable, so every member has a data
+    descriptor (flag bit 3), as streaming writers make them."""
+    import io
+
+    buf = io.BytesIO()
+    target = buf
+    if stream:
+
+        class Unseekable(io.RawIOBase):
+            def writable(self):
+                return True
+
+            def write(self, b):
+                return buf.write(b)
+
+        target = Unseekable()
+    with zipfile.ZipFile(target, "w", method) as z:
+        for name, data in members:
+            info = zipfile.ZipInfo(name, (2020, 1, 1, 0, 0, 0))
+            info.compress_type = method
+            with z.open(info, "w", force_zip64=zip64) as f:
+                f.write(data)
+    return buf.getvalue()
+
+
+def _npy(value, version=None, fortran=False, big=False) -> bytes:
+    import io
+
+    a = np.asanyarray(value)
+    if big and a.dtype.kind in "iuf" and a.dtype.itemsize > 1:
+        a = a.astype(a.dtype.newbyteorder(">"))
+    if fortran and a.ndim >= 2:
+        a = np.asfortranarray(a)
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, a, version=version, allow_pickle=False)
+    return buf.getvalue()
+
+
+def _npy_header(header: str) -> bytes:
+    """A version 1.0 npy member of this header text and no data."""
+    text = header.encode("latin1")
+    text += b" " * (63 - (10 + len(text)) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text
+
+
+def heldout_npz_cases(arrays: dict, checksummed: bool = False) -> list[tuple[str, bytes]]:
+    """npz variants: legal layouts (read as the seed) and members no array has. A file with
+    a checksum keeps it valid only where the bytes hashed stay the same (not big-endian)."""
+    members = [(f"{k}.npy", _npy(v)) for k, v in arrays.items()]
+    first = next(k for k, v in arrays.items() if v.dtype.kind in "iuf" and v.ndim >= 1)
+
+    def with_first(member):
+        return _zip_members([(n, member if n == f"{first}.npy" else d) for n, d in members])
+
+    def layout(**kw):
+        return _zip_members([(f"{k}.npy", _npy(v, **kw)) for k, v in arrays.items()])
+
+    same = [
+        ("npy 2.0 headers", layout(version=(2, 0))),
+        ("Fortran-order arrays", layout(fortran=True)),
+        ("deflated members (savez_compressed)", _zip_members(members, zipfile.ZIP_DEFLATED)),
+        ("data descriptors (a streamed zip)", _zip_members(members, stream=True)),
+        ("zip64 records", _zip_members(members, zip64=True)),
+    ]
+    if not checksummed:
+        same.append(("big-endian arrays", layout(big=True)))
+    error = [
+        (f"{first} member a whole npz (nested zip)", with_first(_zip_members(members))),
+        (f"{first} 0-d", with_first(_npy(np.float64(1.0)))),
+        (f"{first} header shape (2^40, 0)", with_first(_npy_header(
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (1099511627776, 0), }"))),
+        (f"{first} header with an extra key", with_first(_npy_header(
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (0,), 'x': 1, }"))),
+        (f"{first} datetime64", with_first(_npy(np.zeros(2, "<M8[s]")))),
+    ]  # fmt: skip
+    return [(f"held-out same: {label}", data) for label, data in same] + [
+        (f"held-out error: {label}", data) for label, data in error
+    ]
+
+
+def heldout_camera_cases(arrays: dict) -> list[tuple[str, bytes]]:
+    """A skewed K (Blender's camera has no skew) and a mirrored w2c (determinant -1)."""
+    out = []
+    if "K" in arrays:
+        K = arrays["K"].copy()
+        K[..., 0, 1] = 0.5
+        out.append(("held-out error: K skew 0.5 px", npz_bytes({**arrays, "K": K})))
+    if "w2c" in arrays:
+        w2c = arrays["w2c"].copy()
+        w2c[:, 0, 0] = -1.0
+        out.append(("held-out error: w2c a reflection", npz_bytes({**arrays, "w2c": w2c})))
+    return out
+
+
+def heldout_metrical_cases(frame: dict) -> list[tuple[str, bytes]]:
+    mirrored = {**frame["opencv"], "R": np.diag([1, 1, -1]).astype(F32)[None]}
+    K = frame["opencv"]["K"].copy()
+    K[0, 0, 1] = 1e6
+    return [
+        ("held-out error: opencv.R a reflection", torch_bytes({**frame, "opencv": mirrored})),
+        ("held-out error: opencv.K skew 1e6",
+         torch_bytes({**frame, "opencv": {**frame["opencv"], "K": K}})),
+        ("held-out same: pickle protocol 5", _torch_protocol(frame, 5)),
+    ]  # fmt: skip
+
+
+def _torch_protocol(obj, protocol: int) -> bytes:
+    import io
+
+    import torch
+
+    def tensors(v):
+        if isinstance(v, np.ndarray) and v.dtype.kind in "biufc":
+            return torch.from_numpy(v)
+        return {k: tensors(x) for k, x in v.items()} if isinstance(v, dict) else v
+
+    buf = io.BytesIO()
+    torch.save(tensors(obj), buf, pickle_protocol=protocol)
+    return buf.getvalue()
+
+
+def _csc_pickle(flame: dict, **override) -> bytes:
+    """The FLAME dict with J_regressor as a scipy.sparse csc_matrix, pickled as scipy does
+    (NEWOBJ, then its __dict__ as state), without scipy."""
+    J = flame["J_regressor"]
+    indptr, indices, data = [0], [], []
+    for column in J.T:
+        nonzero = np.nonzero(column)[0]
+        indices += nonzero.tolist()
+        data += column[nonzero].tolist()
+        indptr.append(len(indices))
+    state = {"indices": np.array(indices, np.int32), "indptr": np.array(indptr, np.int32),
+             "data": np.array(data), "_shape": J.shape, "maxprint": 50, **override}  # fmt: skip
+    csc = b"cscipy.sparse._csc\ncsc_matrix\n)\x81" + fast_pickle(state)[2:-1] + b"b"
+    return splice_pickle({**flame, "J_regressor": SENTINEL}, csc)
+
+
+def heldout_flame_pickle_cases(flame: dict) -> list[tuple[str, bytes]]:
+    from collections import OrderedDict
+
+    n = flame["J_regressor"].shape[1]
+    return [
+        ("held-out same: J_regressor a csc_matrix (FLAME 2023)", _csc_pickle(flame)),
+        ("held-out same: an OrderedDict", pickle.dumps(OrderedDict(flame), protocol=2)),
+        ("held-out same: protocol 5", pickle.dumps(flame, protocol=5)),
+        ("held-out error: csc indptr claiming 2^40 values",
+         _csc_pickle(flame, indptr=np.array([0] + [1 << 40] * n, np.int64))),
+        ("held-out error: csc indices fractional",
+         _csc_pickle(flame, indices=np.zeros(1, np.float64) + 0.5)),
+    ]  # fmt: skip
+
+
+def heldout_json_cases(config: dict) -> list[tuple[str, bytes]]:
+    """Integers beyond float's range (JSON has no limit: Python reads 10^400 exactly)."""
+    huge = "1" + "0" * 400
+    out = []
+    for path in (("resolution",), ("lr", "features"), ("avatar", "tau"), ("threads",),
+                 ("loss", "parts")):  # fmt: skip
+        d = json.loads(json.dumps(config))
+        target = d
+        for key in path[:-1]:
+            target = target[key]
+        target[path[-1]] = "__HUGE__"
+        text = json.dumps(d).replace('"__HUGE__"', huge)
+        out.append((f"held-out error: {'.'.join(path)} 10^400", text.encode()))
+    return out
+
+
+def heldout_state_cases(state: dict) -> list[tuple[str, bytes]]:
+    """Training states, checksum made anew, whose plain values are off: Adam's settings
+    (torch's load_state_dict resumes with the file's), huge integers, booleans."""
+    import copy
+
+    from archhead_addon.io.checksum import KEY, tree_checksum
+
+    def case(change):
+        s = copy.deepcopy(state)
+        change(s)
+        s = {k: v for k, v in s.items() if k != KEY}
+        return torch_bytes({**s, KEY: tree_checksum(s)})
+
+    def group(**kw):
+        return lambda s: s["optimizer"]["param_groups"][0].update(kw)
+
+    huge = 10**400
+    tau = json.loads(state["avatar_config"])
+    tau["tau"] = "__HUGE__"
+    avatar = json.dumps(tau).replace('"__HUGE__"', str(huge))
+    cases = {
+        "elapsed 10^400": lambda s: s.update(elapsed=huge),
+        "elapsed true": lambda s: s.update(elapsed=True),
+        "version true": lambda s: s.update(version=True),
+        "group lr 10^400": group(lr=huge),
+        "group lr 1e300": group(lr=1e300),
+        "group betas (NaN, 0.999)": group(betas=(math.nan, 0.999)),
+        "group eps -1": group(eps=-1.0),
+        "group weight_decay Inf": group(weight_decay=math.inf),
+        "group maximize true": group(maximize=True),
+        "avatar_config tau 10^400": lambda s: s.update(avatar_config=avatar),
+    }
+    return [(f"held-out error: {label}", case(change)) for label, change in cases.items()]
+
+
+def heldout_checkpoint_cases(arrays: dict) -> list[tuple[str, bytes]]:
+    from archhead_addon.io.checksum import KEY, with_checksum
+
+    plain = {k: v for k, v in arrays.items() if k != KEY}
+    config = json.loads(str(plain["config"]))
+    config["tau"] = "__HUGE__"
+    text = json.dumps(config).replace('"__HUGE__"', "1" + "0" * 400)
+    return [("held-out error: config tau 10^400 with a valid checksum",
+             npz_bytes(with_checksum({**plain, "config": np.str_(text)})))]  # fmt: skip
+
+
+def heldout_ply_cases(data: bytes) -> list[tuple[str, bytes]]:
+    """A count int() refuses (past 4300 digits), and f_rest counts of no SH degree."""
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header, body = data[:end].decode(), data[end:]
+    table = np.frombuffer(body, F32).reshape(20, -1)
+    names = [line.split()[2] for line in header.splitlines() if line.startswith("property")]
+    keep = [i for i, n in enumerate(names) if not n.startswith("f_rest_")]
+    out = [("held-out error: count of 5000 digits",
+            header.replace("vertex 20", "vertex " + "9" * 5000).encode() + body)]  # fmt: skip
+    for n_rest in (3, 30):
+        at = [names[i] for i in keep].index("opacity")
+        props = [names[i] for i in keep]
+        props[at:at] = [f"f_rest_{i}" for i in range(n_rest)]
+        cols = [table[:, keep[:at]], np.zeros((20, n_rest), F32), table[:, keep[at:]]]
+        head = ["ply", "format binary_little_endian 1.0", "element vertex 20"]
+        head += [f"property float {p}" for p in props] + ["end_header"]
+        text = ("\n".join(head) + "\n").encode()
+        out.append((f"held-out error: {n_rest} f_rest values (SH of {n_rest // 3 + 1})",
+                    text + np.concatenate(cols, 1).tobytes()))  # fmt: skip
+    return out
+
+
+def many_frames(arrays: dict, frames: int, n: int) -> bytes:
+    """`arrays` (n frames) repeated to `frames` frames, deflated: a small file of tens of
+    MB of arrays, within zip_check's inflate floor (tests/test_size_bombs.py)."""
+    reps = frames // n
+    tiled = {
+        k: np.tile(v, (reps,) + (1,) * (v.ndim - 1)) if v.ndim and len(v) == n else v
+        for k, v in arrays.items()
+    }
+    return _zip_members([(f"{k}.npy", _npy(v)) for k, v in tiled.items()], zipfile.ZIP_DEFLATED)
+
+
 # ------------------------------------------------------------------------- readers
 
 
@@ -1156,19 +1415,23 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
 
     flame = _flame_arrays()
     family("flame .npz", "m.npz", npz_bytes(flame),
-           npz_mutations(flame, rng) + byte_mutations(npz_bytes(flame), rng))  # fmt: skip
+           npz_mutations(flame, rng) + byte_mutations(npz_bytes(flame), rng),
+           heldout_npz_cases(flame))  # fmt: skip
     family("flame .pkl", "m.pkl", fast_pickle(flame),
            [(lbl, fast_pickle(d)) for lbl, d in value_mutations(flame, rng)]
            + pickle_mutations(flame, rng, marker, splice_pickle)
-           + byte_mutations(fast_pickle(flame), rng))  # fmt: skip
+           + byte_mutations(fast_pickle(flame), rng),
+           heldout_flame_pickle_cases(flame))  # fmt: skip
     seq = _sequence_arrays()
     family("canonical npz", "s.npz", npz_bytes(seq),
            npz_mutations(seq, rng) + byte_mutations(npz_bytes(seq), rng)
-           + _canonical_cases(seq))  # fmt: skip
+           + _canonical_cases(seq),
+           heldout_npz_cases(seq) + heldout_camera_cases(seq))  # fmt: skip
     vt = _vhap_arrays(n=4)
     vt.update(focal_length=np.array([1.5], F32), image_size=np.array([256, 256]))
     family("vhap tracked npz", "tracked_flame_params.npz", npz_bytes(vt),
-           npz_mutations(vt, rng) + byte_mutations(npz_bytes(vt), rng))  # fmt: skip
+           npz_mutations(vt, rng) + byte_mutations(npz_bytes(vt), rng),
+           heldout_npz_cases(vt))  # fmt: skip
     _vhap_folders(root, items, rng)
     frame = _metrical_frame()
     family("metrical .frame", "00001.frame", torch_bytes(frame),
@@ -1176,45 +1439,56 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
            + pickle_mutations(frame, rng, marker, splice_torch)
            + zip_mutations(torch_bytes(frame)) + torch_size_bombs(torch_bytes(frame))
            + _metrical_cases(frame)
-           + byte_mutations(torch_bytes(frame), rng))  # fmt: skip
+           + byte_mutations(torch_bytes(frame), rng),
+           heldout_metrical_cases(frame))  # fmt: skip
     fht = _fht_arrays()
     family("flame-head-tracker npz", "3.npz", npz_bytes(fht),
-           npz_mutations(fht, rng) + byte_mutations(npz_bytes(fht), rng))  # fmt: skip
+           npz_mutations(fht, rng) + byte_mutations(npz_bytes(fht), rng),
+           heldout_npz_cases(fht) + heldout_camera_cases(fht))  # fmt: skip
     clip = _clip()
     npz_clip = {**clip, "fps": np.float64(clip["fps"])}
     family("driving clip npz", "c.npz", npz_bytes(npz_clip),
            npz_mutations(npz_clip, rng) + byte_mutations(npz_bytes(npz_clip), rng),
-           _clip_npz_cases(clip) + more_byte_mutations(npz_bytes(npz_clip), 1))  # fmt: skip
+           _clip_npz_cases(clip) + more_byte_mutations(npz_bytes(npz_clip), 1)
+           + heldout_npz_cases(npz_clip))  # fmt: skip
     family("driving clip pkl", "c.pkl", fast_pickle(clip),
            [(lbl, fast_pickle(d)) for lbl, d in value_mutations(clip, rng)]
            + pickle_mutations(clip, rng, marker, splice_pickle)
            + byte_mutations(fast_pickle(clip), rng),
-           _clip_pickle_cases(clip) + more_byte_mutations(fast_pickle(clip), 2))  # fmt: skip
+           _clip_pickle_cases(clip) + more_byte_mutations(fast_pickle(clip), 2)
+           + [("held-out same: protocol 5", pickle.dumps(clip, protocol=5)),
+              ("held-out same: an OrderedDict",
+               pickle.dumps(__import__("collections").OrderedDict(clip), protocol=2))])  # fmt: skip
     family("driving clip .pt", "c.pt", torch_bytes(clip),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(clip, rng)]
            + pickle_mutations(clip, rng, marker, splice_torch)
            + zip_mutations(torch_bytes(clip)) + torch_size_bombs(torch_bytes(clip))
-           + byte_mutations(torch_bytes(clip), rng))  # fmt: skip
+           + byte_mutations(torch_bytes(clip), rng),
+           [("held-out same: pickle protocol 5", _torch_protocol(clip, 5))])  # fmt: skip
     ckpt = _checkpoint_arrays()
     with np.load(__import__("io").BytesIO(ckpt)) as z:
         ckpt_arrays = {k: z[k] for k in z.files}
     family("avatar checkpoint", "a.npz", ckpt,
            npz_mutations(ckpt_arrays, rng) + byte_mutations(ckpt, rng)
            + [("older file, no checksum",
-               npz_bytes({k: v for k, v in ckpt_arrays.items() if k != "checksum"}))])  # fmt: skip
+               npz_bytes({k: v for k, v in ckpt_arrays.items() if k != "checksum"}))],
+           heldout_npz_cases(ckpt_arrays, checksummed=True)
+           + heldout_checkpoint_cases(ckpt_arrays))  # fmt: skip
     cache = _cache_frame_bytes()
     with np.load(__import__("io").BytesIO(cache)) as z:
         cache_arrays = {k: z[k] for k in z.files}
     family("decode cache", "0123abcd.npz", cache,
            npz_mutations(cache_arrays, rng) + byte_mutations(cache, rng)
            + _cache_cases(cache_arrays),
-           _cache_more_cases(cache_arrays) + more_byte_mutations(cache, 3))  # fmt: skip
+           _cache_more_cases(cache_arrays) + more_byte_mutations(cache, 3)
+           + heldout_npz_cases(cache_arrays, checksummed=True))  # fmt: skip
     config = _train_config()
     text = json.dumps(config).encode()
     tiny_tau = json.dumps({**config, "avatar": {**config["avatar"], "tau": 1e-300}}).encode()
     family("training config", "c.json", text,
            json_mutations(config, rng) + byte_mutations(text, rng)
-           + [("avatar.tau 1e-300", tiny_tau)])  # fmt: skip
+           + [("avatar.tau 1e-300", tiny_tau)],
+           heldout_json_cases(config))  # fmt: skip
     state_np = _train_state()
     family("train_state", "train_state.pt", torch_bytes(state_np),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(state_np, rng)]
@@ -1222,11 +1496,13 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
            + pickle_mutations(state_np, rng, marker, splice_torch)
            + zip_mutations(torch_bytes(state_np)) + torch_size_bombs(torch_bytes(state_np))
            + byte_mutations(torch_bytes(state_np), rng),
-           [(lbl, torch_bytes(d)) for lbl, d in _train_state_checksum_cases(state_np)])  # fmt: skip
+           [(lbl, torch_bytes(d)) for lbl, d in _train_state_checksum_cases(state_np)]
+           + heldout_state_cases(state_np))  # fmt: skip
     ply = _ply_bytes()
     family("PLY", "a.ply", ply,
            ply_mutations(ply, rng) + byte_mutations(ply, rng),
-           ply_more_mutations(ply) + more_byte_mutations(ply, 4))  # fmt: skip
+           ply_more_mutations(ply) + more_byte_mutations(ply, 4)
+           + heldout_ply_cases(ply))  # fmt: skip
     return items
 
 
@@ -1312,6 +1588,9 @@ def _vhap_folders(root: Path, items: list, rng) -> None:
     variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in byte_mutations(good, rng)[::2]]
     variants += _vhap_cases(transforms, params) + _vhap_more_cases(transforms)
     variants += [(lbl, "transforms.json", d) for lbl, d in more_byte_mutations(good_json, 5)]
+    huge = json.dumps(transforms).replace('"timestep_index": 1', '"timestep_index": 1' + "0" * 30)
+    variants += [("held-out error: timestep_index 10^30", "transforms.json", huge.encode())]
+    variants += [(lbl, "flame_param/00001.npz", d) for lbl, d in heldout_npz_cases(params)]
     for label, target, data in variants:
         folder = root / f"{len(items):05d}" / "vhap"
         (folder / "flame_param").mkdir(parents=True)

@@ -56,3 +56,18 @@ def test_crafted_cases_are_refused(results):
     assert all(r["outcome"] == "error" for r in crafted), [
         (r["reader"], r["label"], r["outcome"]) for r in crafted if r["outcome"] != "error"
     ]
+
+
+def test_heldout_kinds(results):
+    """Issue 33's held-out corpus: each kind of file it found mishandled, and legal layouts
+    (npy 2.0, Fortran order, big-endian, deflated, data descriptors, zip64, pickle protocol
+    5, OrderedDicts, scipy.sparse), refused ("held-out error:") or read as the seed is
+    ("held-out same:")."""
+    held = [r for r in results if "held-out " in r["label"]]
+    assert len(held) >= 100, len(held)
+    wrong = [
+        (r["reader"], r["label"], r["outcome"], r["detail"])
+        for r in held
+        if r["outcome"] != r["label"].split("held-out ")[1].split(":")[0]
+    ]
+    assert not wrong, wrong

@@ -6,7 +6,8 @@ resident memory under issue 33's 512 MB. Peak memory does not depend on the mach
 so it is asserted; the time of each read is printed, not asserted (the corpus test's 5 s
 limit covers it). Before the fix a storage member inflating to 3 GiB behind a directory
 that declared 3 MB was read at 2.1 GB peak, and a stored npy member claiming 3 GiB was
-refused after a 3 GiB allocation (3.1 GB peak)."""
+refused after a 3 GiB allocation (3.1 GB peak). Small files of more frames than a sequence
+may have (`many_frames`) are refused in bounded memory too."""
 
 import json
 import subprocess
@@ -18,6 +19,8 @@ import pytest
 from fuzz_corpus import (
     _clip,
     _metrical_frame,
+    _vhap_arrays,
+    many_frames,
     npz_size_bombs,
     torch_bytes,
     torch_size_bombs,
@@ -65,9 +68,31 @@ def _cases():
     }
 
 
-@pytest.mark.parametrize("reader", ["driving clip .pt", "metrical .frame", "driving clip npz"])
-def test_files_declaring_3_gib_are_refused_in_bounded_memory(tmp_path, reader):
-    name, cases = _cases()[reader]
+def _many_frames_cases():
+    """Small deflated files of tens of MB of arrays (within zip_check's inflate floor) and
+    more frames than a sequence may have (validation.MAX_FRAMES): a 190 kB VHAP npz of
+    650,000 frames was read at 600 MB peak before issue 33's held-out corpus (its cameras
+    are repeated per frame, then checked), a 100 kB clip of 940,000 frames at 160 MB."""
+    vt = _vhap_arrays(n=4)
+    vt.update(focal_length=np.array([1.5], np.float32), image_size=np.array([256, 256]))
+    clip = _clip()
+    clip = {**clip, "fps": np.float64(clip["fps"])}
+    return {
+        "vhap tracked npz": (
+            "tracked_flame_params.npz",
+            [("650,000 frames", many_frames(vt, 650_000, 4))],
+        ),
+        "driving clip npz": ("c.npz", [("940,000 frames", many_frames(clip, 940_000, 5))]),
+    }
+
+
+@pytest.mark.parametrize(
+    "reader, kind",
+    [(r, "3 GiB") for r in ("driving clip .pt", "metrical .frame", "driving clip npz")]
+    + [(r, "frames") for r in ("vhap tracked npz", "driving clip npz")],
+)
+def test_crafted_files_are_refused_in_bounded_memory(tmp_path, reader, kind):
+    name, cases = (_cases() if kind == "3 GiB" else _many_frames_cases())[reader]
     paths, labels = [], {}
     for i, (label, data) in enumerate(cases):
         assert len(data) < 4 << 20  # small files: at most 4 MB each

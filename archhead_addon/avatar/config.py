@@ -10,6 +10,8 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields, replace
 
+from ..io.schema import finite_real
+
 # the five decoder heads, in decoding order, and the raw output widths of the first four (the
 # colour head's depends on the SH degree: AvatarConfig.head_outputs)
 HEADS = ("offset", "scale", "rotation", "opacity", "colour")
@@ -175,9 +177,9 @@ def _check_types_and_limits(config: AvatarConfig) -> None:
             if value not in COLOUR_SPACES:
                 raise ValueError(f"colour_space must be one of {COLOUR_SPACES}, got {value!r}")
         elif isinstance(value, tuple):
-            if len(value) != 3 or not all(_is_real(v) for v in value):
+            if len(value) != 3 or not all(finite_real(v) for v in value):
                 raise ValueError(f"{f.name} must be three finite numbers")
-        elif not _is_real(value):
+        elif not finite_real(value):
             raise ValueError(f"{f.name} must be a finite number, got {value!r:.40}")
         if f.name in RANGES:
             low, high, why = RANGES[f.name]
@@ -189,10 +191,6 @@ def _check_types_and_limits(config: AvatarConfig) -> None:
 
 def _is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _is_real(value) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 # Table 4 of the paper: the full model and its ablations, as config changes

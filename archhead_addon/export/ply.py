@@ -129,6 +129,12 @@ def _header(path, lines: list[str]) -> tuple[list, int]:
         if tokens[:1] == ["element"]:
             if len(tokens) != 3 or not tokens[2].isdigit():
                 raise InputError(path, "element", f"malformed line {line[:60]!r}")
+            if len(tokens[2]) > MAX_COUNT_DIGITS:  # int() refuses past 4300 digits
+                raise InputError(
+                    path,
+                    f"element {tokens[1]}",
+                    f"a count of {len(tokens[2])} digits: more than any file holds",
+                )
             element = tokens[1]
             if element == "vertex":
                 count = int(tokens[2])
@@ -150,6 +156,7 @@ def _header(path, lines: list[str]) -> tuple[list, int]:
     return fields, count, last
 
 
+MAX_COUNT_DIGITS = 18  # below 2^63: larger counts are refused by the body's size anyway
 _HEADER_WORDS = {"ply", "format", "comment", "obj_info", "element", "property", "end_header"}
 
 
@@ -161,6 +168,13 @@ def rows_to_gaussians(props: dict[str, np.ndarray], path=None) -> dict[str, np.n
     n_rest = len([k for k in props if re.fullmatch(r"f_rest_\d+", k)])
     if n_rest % 3:
         raise InputError(path, "f_rest", f"{n_rest} higher SH values: not 3 per band")
+    if n_rest // 3 + 1 not in SH_COEFFICIENTS:  # K = (degree + 1)^2, as decode_cache reads
+        raise InputError(
+            path,
+            "f_rest",
+            f"{n_rest} higher SH values: {n_rest // 3 + 1} coefficients per colour, not an "
+            f"SH degree's {SH_COEFFICIENTS} (degree 0..3)",
+        )
 
     def stack(names):
         for name in names:
@@ -196,6 +210,7 @@ def rows_to_gaussians(props: dict[str, np.ndarray], path=None) -> dict[str, np.n
     return out
 
 
+SH_COEFFICIENTS = (1, 4, 9, 16)
 QUAT_NORM = (float(np.sqrt(F32_TINY)), float(np.sqrt(np.finfo(np.float32).max)))
 _PLAUSIBLE = (
     ("means", 1e3, "metres from the origin"),

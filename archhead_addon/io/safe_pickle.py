@@ -13,6 +13,7 @@ counts shared references each time they are reached.
 
 from __future__ import annotations
 
+import collections
 import functools
 import io
 import pickle
@@ -61,7 +62,7 @@ class SparseStub(_StateStub):
         if len(shape) != 2:
             raise ValueError(f"{where}: sparse matrix has no 2-D shape")
         _check_size(shape, 8, max_bytes, where)
-        data = _vector(s, "data", np.float64, where)
+        data = _vector(s, "data", np.float64, where, "iuf")
         dense = np.zeros(shape, dtype=np.float64)
         if self.fmt == "coo":
             rows, cols = _vector(s, "row", np.int64, where), _vector(s, "col", np.int64, where)
@@ -71,7 +72,13 @@ class SparseStub(_StateStub):
                 _vector(s, "indptr", np.int64, where),
             )
             n_major = shape[1] if self.fmt == "csc" else shape[0]
-            if len(indptr) != n_major + 1 or (np.diff(indptr) < 0).any() or indptr[0] != 0:
+            # the last entry counts the stored values: np.repeat below allocates that many
+            if (
+                len(indptr) != n_major + 1
+                or (np.diff(indptr) < 0).any()
+                or indptr[0] != 0
+                or indptr[-1] != len(indices)
+            ):
                 raise ValueError(f"{where}: sparse matrix with an inconsistent indptr")
             major = np.repeat(np.arange(n_major), np.diff(indptr))
             rows, cols = (indices, major) if self.fmt == "csc" else (major, indices)
@@ -92,10 +99,13 @@ def _count(n, where: str) -> int:
     return int(n)
 
 
-def _vector(state: dict, key: str, dtype, where: str) -> np.ndarray:
+def _vector(state: dict, key: str, dtype, where: str, kinds: str = "iu") -> np.ndarray:
+    """A vector of the state: integers (indices), or `kinds` (values: no booleans, and
+    no fractional indices, which a cast would truncate to other rows silently)."""
     value = state.get(key)
-    if not isinstance(value, np.ndarray) or value.ndim != 1 or value.dtype.kind not in "biuf":
-        raise ValueError(f"{where}: sparse matrix '{key}' is not a numeric vector")
+    if not isinstance(value, np.ndarray) or value.ndim != 1 or value.dtype.kind not in kinds:
+        what = "an integer" if kinds == "iu" else "a numeric"
+        raise ValueError(f"{where}: sparse matrix '{key}' is not {what} vector")
     return value.astype(dtype)
 
 
@@ -243,6 +253,8 @@ class RestrictedUnpickler(pickle.Unpickler):
             **_numpy_names(),
             **{k: functools.partial(f, max_bytes) for k, f in sized.items()},
             ("numpy", "ndarray"): _SizedNdarray(max_bytes),
+            # a dict saved as an OrderedDict (as torch.save files hold them): read as a dict
+            ("collections", "OrderedDict"): collections.OrderedDict,
             **(extra or {}),
         }
 

@@ -4,11 +4,27 @@ InputWarning (the value may be real, but usually means a unit or format mix-up).
 
 from __future__ import annotations
 
+import math
+from numbers import Real
+
 import numpy as np
 
 from .errors import InputError, warn_input
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def finite_real(value) -> bool:
+    """A finite real number and not a bool (JSON's true is an int to Python); an integer
+    beyond float's range (JSON's 1 followed by 400 zeros) is not finite."""
+    if isinstance(value, bool) or not isinstance(value, Real):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 MAX_LIST_ITEMS = 1 << 20  # Python lists converted to arrays (pickled codes): elements
 
 

@@ -17,6 +17,7 @@ from ..io.safe_pickle import safe_load
 from ..io.torch_zip import load_torch_file, looks_like_torch_file
 from .common import get, load_npz
 from .sequence import Sequence
+from .validation import check_frame_count
 
 NAME = "driving-clip"
 
@@ -45,6 +46,7 @@ def read_driving_clip(path, *, fps=None) -> Sequence:
         )
     expr = get(data, "exp", path, ("T", "E"), along="frame")
     n = len(expr)
+    check_frame_count(n, path)
     jaw = get(data, "jaw", path, (n, 3), along="frame")
     stored_fps = float(get(data, "fps", path, (), (1,)).reshape(()))
     zeros = np.zeros((n, 3))

@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from ..io.errors import InputError, warn_input
-from .validation import check_values
+from .validation import check_frame_count, check_values
 
 DEFAULT_FPS = 25.0
 """Frame rate assumed (with a warning) for formats that do not store one."""
@@ -87,6 +87,7 @@ class Sequence:
         n = len(self.expr)
         if n == 0:
             raise InputError(self.source, "expr", "the sequence has no frames")
+        check_frame_count(n, self.source)
         if self.frame_ids.shape != (n,):
             raise InputError(
                 self.source, "frame_ids", f"expected shape ({n},), found {self.frame_ids.shape}"

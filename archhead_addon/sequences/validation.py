@@ -30,6 +30,21 @@ TRAINED_CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translatio
 MAX_IMAGE_SIDE = 1 << 16  # a larger image side is possible, but no video has one
 FPS_RANGE = (1.0, 1000.0)
 MAX_FRAME_ID = (1 << 31) - 1  # frame numbers are 32-bit in Blender, ffmpeg and the trackers
+# Frames in one sequence: 2.4 hours at 30 fps, far beyond any tracked or driving clip. A
+# sequence with cameras takes 432 bytes a frame in float64, and its checks as much again:
+# without a limit a 190 kB VHAP npz of 650,000 repeated frames (deflated) cost 600 MB.
+MAX_FRAMES = 1 << 18
+
+
+def check_frame_count(n: int, path, key: str = "expr") -> None:
+    """InputError for more than MAX_FRAMES frames: called before a reader expands them."""
+    if n > MAX_FRAMES:
+        raise InputError(
+            path,
+            key,
+            f"{n} frames, above the limit of {MAX_FRAMES} for one sequence (2.4 hours at "
+            "30 fps; no tracker or clip has more)",
+        )
 
 
 def check_values(seq) -> None:
@@ -92,12 +107,30 @@ def _check_camera(seq) -> None:
             f"negative focal length {focal[t].tolist()} at frame index {t}: "
             "a mirrored camera (focal lengths are > 0 in pixels)",
         )
+    skew = np.abs(K[:, 0, 1]) > 1e-6 * np.abs(K[:, 0, 0])
+    if skew.any():  # no camera ArchHead draws has one (camera.py: Blender's cannot)
+        t = int(np.argmax(skew))
+        raise InputError(
+            seq.source,
+            "K",
+            f"camera skew K[0,1] = {K[t, 0, 1]:.3g} at frame index {t}: pinhole cameras "
+            "without skew only (Blender's camera cannot represent one)",
+        )
     rot = seq.w2c[:, :3, :3]
     det = np.linalg.det(rot)
     bad = ~(np.abs(det) > 1e-9) | (np.abs(seq.w2c[:, 3] - [0, 0, 0, 1]) > 1e-6).any(axis=1)
     if bad.any():
         t = int(np.argmax(bad))
         raise InputError(seq.source, "w2c", f"not an invertible rigid transform at frame index {t}")
+    bad = det < 0
+    if bad.any():  # a reflection: a mirrored camera, as a negative focal length is
+        t = int(np.argmax(bad))
+        raise InputError(
+            seq.source,
+            "w2c",
+            f"rotation part with determinant {det[t]:.3g} at frame index {t}: a reflection "
+            "(a mirrored camera), not a rotation",
+        )
     error = np.abs(rot @ np.swapaxes(rot, 1, 2) - np.eye(3)).max(axis=(1, 2))
     if (error > 1e-3).any():
         t = int(np.argmax(error > 1e-3))

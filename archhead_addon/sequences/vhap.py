@@ -32,6 +32,7 @@ from ..io.json_input import json_number, load_json
 from .cameras import intrinsics, w2c_from_opengl_c2w
 from .common import get, load_npz, numbered_files, resolve_fps
 from .sequence import Sequence
+from .validation import check_frame_count
 
 NAME = "vhap"
 _POSES = (
@@ -78,6 +79,7 @@ def _rows(arrays: dict, path: Path, frame=None, single=False) -> dict:
     n = len(expr)
     if single and n != 1:
         raise InputError(path, "expr", f"expected one timestep per file, found {n}")
+    check_frame_count(n, path)  # before the identity and the cameras are repeated n times
     rows = {"expr": expr, "path": path}
     for key, name, width in _POSES:
         rows[name] = get(arrays, key, path, (n, width), frame=frame, along="frame")
@@ -157,10 +159,13 @@ def _read_exported(folder: Path, fps, camera: int | None) -> Sequence:
     for file, i, frame, _ in frames:
         for key, default in (("timestep_index", None), ("camera_index", 0)):
             value = frame.get(key, default)
-            # a JSON true or false is an int to Python: true would stand for timestep 1
-            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+            # a JSON true or false is an int to Python: true would stand for timestep 1; past
+            # int64 numpy cannot hold it (frame ids past 2^31 - 1 are refused by validation)
+            if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 1 << 63:
                 raise InputError(
-                    file, f"frames[{i}].{key}", f"expected a whole number >= 0, found {value!r:.40}"
+                    file,
+                    f"frames[{i}].{key}",
+                    f"expected a whole number in 0..2^63-1, found {value!r:.40}",
                 )
     cameras = sorted({frame.get("camera_index", 0) for _, _, frame, _ in frames})
     chosen = cameras[0] if camera is None else camera

@@ -12,14 +12,13 @@ reads it before torch loads.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass, field, fields, replace
-from numbers import Real
 from pathlib import Path
 
 from ..avatar.config import AvatarConfig
 from ..io.errors import InputError
 from ..io.json_input import load_json
+from ..io.schema import finite_real
 from ..threads import thread_count
 from .config_ranges import check_ranges
 
@@ -98,7 +97,7 @@ class TrainConfig:
         for key in WHOLE_NUMBERS:
             value = getattr(self, key)
             if not _is_whole(value):
-                raise InputError(None, key, f"must be a finite whole number, got {value!r}")
+                raise InputError(None, key, f"must be a finite whole number, got {value!r:.60}")
             object.__setattr__(self, key, int(value))  # 1e3 in JSON reads as 1000.0
         for key in ("stage1_steps", "stage2_steps", "seed", "threads"):
             _require(getattr(self, key) >= 0, key, f"must be >= 0, got {getattr(self, key)}")
@@ -118,8 +117,10 @@ class TrainConfig:
         for group in ("lr", "loss"):
             for f in fields(getattr(self, group)):
                 value = getattr(getattr(self, group), f.name)
-                ok = _is_number(value) and value >= 0
-                _require(ok, f"{group}.{f.name}", f"must be a finite number >= 0, got {value!r}")
+                ok = finite_real(value) and value >= 0
+                _require(
+                    ok, f"{group}.{f.name}", f"must be a finite number >= 0, got {value!r:.60}"
+                )
         _require(
             self.loss.huber_delta > 0,
             "loss.huber_delta",
@@ -127,7 +128,7 @@ class TrainConfig:
         )
         ratio = self.lr_final_ratio
         _require(
-            _is_number(ratio) and 0 < ratio <= 1,
+            finite_real(ratio) and 0 < ratio <= 1,
             "lr_final_ratio",
             f"must be in (0, 1], got {ratio!r}",
         )
@@ -230,12 +231,8 @@ def _nested(kind, data, name: str):
         raise ValueError(f"'{name}': {exc}") from exc
 
 
-def _is_number(value) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def _is_whole(value) -> bool:
-    return _is_number(value) and value == int(value)
+    return finite_real(value) and value == int(value)
 
 
 def _require(ok: bool, key: str, problem: str) -> None:

@@ -4,10 +4,10 @@ is an InputError naming the key; one past the plausible range trains, with a war
 
 from __future__ import annotations
 
-import math
 from dataclasses import fields
 
 from ..io.errors import InputError, warn_input
+from ..io.schema import finite_real
 
 # key: (lowest, highest); whole numbers. Above these a run allocates or takes years.
 COUNTS = {
@@ -27,8 +27,10 @@ def check_ranges(config, where=None):
     """`config` unchanged when every value is in range; InputError naming the key if not."""
     for key, (low, high) in COUNTS.items():
         value = getattr(config, key)
-        if not (_real(value) and value == int(value) and low <= value <= high):
-            raise InputError(where, key, f"must be a whole number in {low}..{high}, got {value!r}")
+        if not (finite_real(value) and value == int(value) and low <= value <= high):
+            raise InputError(
+                where, key, f"must be a whole number in {low}..{high}, got {value!r:.60}"
+            )
     for f in fields(config.lr):
         positive = f.name not in SWITCHED_RATES
         _check(config.lr, f.name, "lr", 0.0, LR_MAX, LR_PLAUSIBLE, where, positive=positive)
@@ -39,12 +41,8 @@ def check_ranges(config, where=None):
 
 def _check(group, name, prefix, low, high, plausible, where, positive=False) -> None:
     value, key = getattr(group, name), f"{prefix}.{name}"
-    if not (_real(value) and low <= value <= high) or (positive and value == 0):
+    if not (finite_real(value) and low <= value <= high) or (positive and value == 0):
         bound = f"in ({low:g}, {high:g}]" if positive else f"in [{low:g}, {high:g}]"
-        raise InputError(where, key, f"must be a finite number {bound}, got {value!r}")
+        raise InputError(where, key, f"must be a finite number {bound}, got {value!r:.60}")
     if value > plausible:
         warn_input(where, key, f"{value:g} is above the plausible {plausible:g}")
-
-
-def _real(value) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)

@@ -20,10 +20,11 @@ import numpy as np
 from ..avatar.config import AvatarConfig, parameter_shapes
 from ..io.checksum import KEY, tree_checksum, verify
 from ..io.errors import InputError, warn_input
-from ..io.schema import check_finite
+from ..io.schema import check_finite, finite_real
 from ..io.torch_zip import load_torch_file
 from ..sequences.validation import PLAUSIBLE, TRAIN_FACTOR
 from .config import TrainConfig
+from .config_ranges import LR_MAX
 
 STATE_FORMAT, STATE_VERSION = "archhead-train-state", 1
 # Trainer's Adam groups, in order, each of the model's tensors under that prefix (loop.py);
@@ -41,6 +42,13 @@ ADAM_STATE = ("step", "exp_avg", "exp_avg_sq")
 # - exp_avg_sq, a running mean of squared gradients: the square of that limit.
 PARAMETER_LIMIT = 1e6
 MOMENT_LIMITS = {"exp_avg": 1e6, "exp_avg_sq": 1e12}
+# Adam's settings in each parameter group, which torch's load_state_dict takes from the file:
+# (lowest, highest) of the numbers (betas each), and the switches the trainer leaves off
+# (maximize climbs the loss; amsgrad needs a moment the trainer never keeps)
+ADAM_RANGES = {"lr": (0.0, LR_MAX), "betas": (0.0, 0.999999), "eps": (0.0, 1.0),
+               "weight_decay": (0.0, 1.0)}  # fmt: skip
+ADAM_OFF = ("amsgrad", "maximize")
+ADAM_FLAGS = ("foreach", "capturable", "differentiable", "fused", "decoupled_weight_decay")
 
 
 def read_train_state(path) -> dict:
@@ -54,13 +62,14 @@ def read_train_state(path) -> dict:
         or not isinstance(state.get("format"), str)
         or state.get("format") != STATE_FORMAT
         or not isinstance(state.get("version"), int)
+        or isinstance(state.get("version"), bool)
         or state.get("version") != STATE_VERSION
     ):
         raise InputError(path, None, f"not an ArchHead training state of version {STATE_VERSION}")
     step, elapsed = state.get("step"), state.get("elapsed")
     if not isinstance(step, int) or isinstance(step, bool) or not 0 <= step < 1 << 40:
         raise InputError(path, "step", f"expected a whole number >= 0, found {step!r:.40}")
-    if not isinstance(elapsed, int | float) or not (math.isfinite(elapsed) and elapsed >= 0):
+    if not _real_in(elapsed, 0.0, math.inf):
         raise InputError(path, "elapsed", f"expected seconds >= 0, found {elapsed!r:.40}")
     parsed = {}
     for key, parse in (("config", _train_config), ("avatar_config", AvatarConfig.from_json)):
@@ -90,6 +99,41 @@ def read_train_state(path) -> dict:
             "its content is read unchecked",
         )
     return state
+
+
+def _real_in(value, low: float, high: float) -> bool:
+    return finite_real(value) and low <= value <= high
+    try:
+        return math.isfinite(value) and low <= value <= high
+    except OverflowError:
+        return False
+
+
+def _adam_settings(group: dict, path, where: str) -> None:
+    """The Adam settings of one parameter group in range (torch resumes with them)."""
+    for name, (low, high) in ADAM_RANGES.items():
+        value = group.get(name)
+        if name != "lr" and name not in group:
+            continue  # torch's defaults
+        values = value if name == "betas" and isinstance(value, list | tuple) else [value]
+        if (name == "betas" and len(values) != 2) or not all(
+            _real_in(v, low, high) for v in values
+        ):
+            raise InputError(
+                path,
+                f"{where}.{name}",
+                f"expected numbers in {low:g}..{high:g}, found {value!r:.60}",
+            )
+    for name in ADAM_OFF + ADAM_FLAGS:
+        value = group.get(name)
+        if not (value is None or value is False or (name in ADAM_FLAGS and value is True)):
+            raise InputError(
+                path,
+                f"{where}.{name}",
+                f"{value!r:.40}: the trainer's Adam has it off"
+                if name in ADAM_OFF
+                else f"expected true, false or null, found {value!r:.40}",
+            )
 
 
 def _train_config(text: str) -> TrainConfig:
@@ -190,9 +234,8 @@ def _optimizer(value, path, expected: list[tuple[str, list[tuple[int, ...]]]]) -
         where = f"optimizer.param_groups[{i}]"
         if not isinstance(group, dict):
             raise InputError(path, where, "not a dict")
-        lr, params = group.get("lr"), group.get("params")
-        if not isinstance(lr, int | float) or not (math.isfinite(lr) and lr >= 0):
-            raise InputError(path, f"{where}.lr", "not a finite rate >= 0")
+        params = group.get("params")
+        _adam_settings(group, path, where)
         if not isinstance(params, list) or not all(
             isinstance(p, int) and not isinstance(p, bool) for p in params
         ):
