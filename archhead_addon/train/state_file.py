@@ -103,10 +103,6 @@ def read_train_state(path) -> dict:
 
 def _real_in(value, low: float, high: float) -> bool:
     return finite_real(value) and low <= value <= high
-    try:
-        return math.isfinite(value) and low <= value <= high
-    except OverflowError:
-        return False
 
 
 def _adam_settings(group: dict, path, where: str) -> None:
