@@ -24,6 +24,7 @@ measuring the peak allocation. Outcomes:
 
 from __future__ import annotations
 
+import collections
 import functools
 import json
 import math
@@ -1228,12 +1229,10 @@ def _csc_pickle(flame: dict, **override) -> bytes:
 
 
 def heldout_flame_pickle_cases(flame: dict) -> list[tuple[str, bytes]]:
-    from collections import OrderedDict
-
     n = flame["J_regressor"].shape[1]
     return [
         ("held-out same: J_regressor a csc_matrix (FLAME 2023)", _csc_pickle(flame)),
-        ("held-out same: an OrderedDict", pickle.dumps(OrderedDict(flame), protocol=2)),
+        ("held-out same: an OrderedDict", pickle.dumps(collections.OrderedDict(flame), protocol=2)),
         ("held-out same: protocol 5", pickle.dumps(flame, protocol=5)),
         ("held-out error: csc indptr claiming 2^40 values",
          _csc_pickle(flame, indptr=np.array([0] + [1 << 40] * n, np.int64))),
@@ -1458,7 +1457,7 @@ def corpus(root: Path) -> list[tuple[str, str, Path]]:
            _clip_pickle_cases(clip) + more_byte_mutations(fast_pickle(clip), 2)
            + [("held-out same: protocol 5", pickle.dumps(clip, protocol=5)),
               ("held-out same: an OrderedDict",
-               pickle.dumps(__import__("collections").OrderedDict(clip), protocol=2))])  # fmt: skip
+               pickle.dumps(collections.OrderedDict(clip), protocol=2))])  # fmt: skip
     family("driving clip .pt", "c.pt", torch_bytes(clip),
            [(lbl, torch_bytes(d)) for lbl, d in value_mutations(clip, rng)]
            + pickle_mutations(clip, rng, marker, splice_torch)
