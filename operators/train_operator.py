@@ -31,8 +31,8 @@ OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
 DIALOG_KEY = "train_avatar"  # its remembered fields in STATE.dialog_fields
 REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "resume", "base_config")
 # Times measured on the project's 2-core machine with nothing else running (a loaded machine
-# takes longer): cpu_short is the cpu preset's per-step cost (stage 1 about 68 ms a step,
-# stage 2 about 139 ms) over its 1,000 + 1,500 steps.
+# takes longer): cpu_short renders three levels a stage-2 step (stage 1 about 68 ms a step,
+# stage 2 about 139 ms on the synthetic subject) over its 1,000 + 1,500 steps.
 PRESET_HELP = {
     "cpu": "The CPU avatar: 9,250 steps at 256 px (about 18 min on 2 cores)",
     "cpu_short": "The CPU avatar in 2,500 steps at 256 px (about 4.6 min on 2 quiet cores)",
