@@ -31,12 +31,13 @@ def expression_values(head, depsgraph, n_expr: int) -> np.ndarray:
     if key is None or n_expr == 0:
         return np.zeros(n_expr)
     blocks = key.evaluated_get(depsgraph).key_blocks
-    values = np.zeros(len(blocks) + 1, np.float32)  # the last: what a missing key reads
+    names = tuple(blocks.keys())  # its length too: len() walks Blender's list again
+    values = np.zeros(len(names) + 1, np.float32)  # the last: what a missing key reads
     blocks.foreach_get("value", values[:-1])
-    muted = np.empty(len(blocks), bool)
+    muted = np.empty(len(names), bool)
     blocks.foreach_get("mute", muted)
     values[:-1][muted] = 0.0
-    return values[_expression_slots(tuple(blocks.keys()), n_expr)].astype(np.float64)
+    return values[_expression_slots(names, n_expr)].astype(np.float64)
 
 
 def _expression_slots(names: tuple, n_expr: int) -> np.ndarray:
@@ -79,9 +80,10 @@ def joint_basis(rig) -> np.ndarray:
     """(5,4,4) float32: the local matrices (matrix_basis) of the FLAME joints' bones, in
     JOINT_NAMES order, read in one bulk call. KeyError names a missing bone."""
     bones = rig.pose.bones
-    flat = np.empty(len(bones) * 16, np.float32)
+    names = tuple(bones.keys())
+    flat = np.empty(len(names) * 16, np.float32)
     bones.foreach_get("matrix_basis", flat)  # column-major, as Blender stores matrices
-    return flat.reshape(-1, 4, 4).transpose(0, 2, 1)[_joint_slots(tuple(bones.keys()))]
+    return flat.reshape(-1, 4, 4).transpose(0, 2, 1)[_joint_slots(names)]
 
 
 def _joint_slots(names: tuple) -> np.ndarray:

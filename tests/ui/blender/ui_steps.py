@@ -94,6 +94,15 @@ def shows_lod(obj, lod: float) -> bool:
     return current.shown[0] == current.shared.key(codes, lod)
 
 
+def expression_codes(obj):
+    """The expression codes the avatar reads from its head at the current frame."""
+    from archhead_blender.scene_state import frame_codes
+
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    current = avatar_session(obj)
+    return frame_codes(obj.archhead_avatar.head, depsgraph, current.joint_dirs).expr
+
+
 def head_centre(head):
     import mathutils
 
