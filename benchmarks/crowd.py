@@ -17,9 +17,7 @@ costs equal trained ones'). Then it measures, each over --frames frames not seen
   avatar (all heads are imported first, then the avatars load);
 - a frame change (handlers decoding every avatar; the median over the frames) with the
   distance-driven levels and with every avatar held at LOD 0, and their ratio; and with the
-  add-on paused (Blender evaluating the rigs alone: the part no level of detail changes),
-  and paused with each head's shape evaluated from its keys (what Load Avatar's pinning of
-  the Basis saves);
+  add-on paused (Blender evaluating the rigs alone: the part no level of detail changes);
 - Decode Frames over the whole crowd (one pass), per head and frame;
 - the add-on's handler on frames already decoded, per head: showing a cached frame (its
   codes read from the rig, the frame found, its points written), and with nothing to change;
@@ -184,13 +182,6 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
     suspend()
     try:
         blender_ms = statistics.median(frame_change() for _ in range(frames))
-        # the same with each head's shape evaluated from its keys (Load Avatar pins its Basis)
-        heads = [obj.archhead_avatar.head for obj in avatars]
-        for head in heads:
-            head.show_only_shape_key = False
-        shapes_ms = statistics.median(frame_change() for _ in range(frames))
-        for head in heads:
-            head.show_only_shape_key = True
     finally:
         resume()
     decode_frames = [next(frame) for _ in range(frames)]
@@ -237,7 +228,6 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
         "frame_change_ms_driven": round(driven_ms),
         "frame_change_ms_lod0": round(lod0_ms),
         "frame_change_ms_blender": round(blender_ms),
-        "frame_change_ms_blender_shapes": round(shapes_ms),
         "decode_ms_per_head_frame": round(decode_ms, 1),
         "handler_ms_per_head_cached": round(cached_ms, 2),
         "handler_ms_per_head_idle": round(idle, 3),
@@ -268,7 +258,7 @@ def _picture(render: Path, picture: Path) -> None:
 def table(rows: list[dict]) -> str:
     lines = [
         "| N | avatar | Gaussians driven / LOD 0 "
-        "| frame change ms driven / LOD 0 (ratio) / add-on paused (shapes evaluated) "
+        "| frame change ms driven / LOD 0 (ratio) / add-on paused "
         "| Decode Frames ms per head-frame | handler ms per head: cached frame / idle "
         "| exact render s driven / LOD 0 | RSS first head / all "
         "| MB per extra head: all = imported head + avatar |",
@@ -279,8 +269,7 @@ def table(rows: list[dict]) -> str:
         lines.append(
             f"| {r['heads']} | {r['avatar']} | {r['gaussians_driven']:,} / "
             f"{r['gaussians_lod0']:,} | {r['frame_change_ms_driven']} / "
-            f"{r['frame_change_ms_lod0']} ({ratio:.2f}x) / {r['frame_change_ms_blender']} "
-            f"({r['frame_change_ms_blender_shapes']}) | "
+            f"{r['frame_change_ms_lod0']} ({ratio:.2f}x) / {r['frame_change_ms_blender']} | "
             f"{r['decode_ms_per_head_frame']} | "
             f"{r['handler_ms_per_head_cached']} / {r['handler_ms_per_head_idle']} | "
             f"{r['render_s_driven']} / {r['render_s_lod0']} | {r['rss_first_mb']} / "
