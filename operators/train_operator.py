@@ -34,7 +34,7 @@ REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "resume", "base_con
 # takes longer): cpu_short renders three levels a stage-2 step (stage 1 about 68 ms a step,
 # stage 2 about 139 ms on the synthetic subject) over its 1,000 + 1,500 steps.
 PRESET_HELP = {
-    "cpu": "The CPU avatar: 9,250 steps at 256 px (about 18 min on 2 cores)",
+    "cpu": "The CPU avatar: 12,025 steps at 256 px (about 19 min on 2 quiet cores)",
     "cpu_short": "The CPU avatar in 2,500 steps at 256 px (about 4.6 min on 2 quiet cores)",
     "gpu_paper": "The paper's settings, for a CUDA GPU (45,000 steps at 512 px); not for a CPU",
     "demo": "600 steps at 96 px (17 s on 2 cores): to check that everything runs",
