@@ -39,7 +39,7 @@ def follows_timeline(ui):
             10,
             f"the avatar at frame {frame}",
         )
-        expressions.append(ui_steps.expression_codes(avatar))
+        expressions.append(ui_steps.avatar_codes(avatar).expr)
     # the head's keys drive the avatar: its expression codes follow the timeline
     change = float(abs(expressions[1] - expressions[0]).max())
     ui.data["expression_change"] = change

@@ -82,25 +82,20 @@ def evaluated_lod(obj) -> float:
     return float(obj.evaluated_get(depsgraph).archhead_avatar.lod)
 
 
-def shows_lod(obj, lod: float) -> bool:
-    """Whether the points hold the avatar's current frame at level of detail `lod`."""
+def avatar_codes(obj):
+    """The FLAME codes the avatar reads from its head at the current frame."""
     from archhead_blender.scene_state import frame_codes
 
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    return frame_codes(obj.archhead_avatar.head, depsgraph, avatar_session(obj).joint_dirs)
+
+
+def shows_lod(obj, lod: float) -> bool:
+    """Whether the points hold the avatar's current frame at level of detail `lod`."""
     current = avatar_session(obj)
     if current.shown is None:
         return False
-    depsgraph = bpy.context.evaluated_depsgraph_get()
-    codes = frame_codes(obj.archhead_avatar.head, depsgraph, current.joint_dirs)
-    return current.shown[0] == current.shared.key(codes, lod)
-
-
-def expression_codes(obj):
-    """The expression codes the avatar reads from its head at the current frame."""
-    from archhead_blender.scene_state import frame_codes
-
-    depsgraph = bpy.context.evaluated_depsgraph_get()
-    current = avatar_session(obj)
-    return frame_codes(obj.archhead_avatar.head, depsgraph, current.joint_dirs).expr
+    return current.shown[0] == current.shared.key(avatar_codes(obj), lod)
 
 
 def head_centre(head):
