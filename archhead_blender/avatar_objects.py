@@ -138,7 +138,10 @@ def _remove_new_data(before: dict[str, set[str]]) -> None:
 def _make_room(head, scene) -> None:
     """The head mesh stays evaluated (its shape keys drive the avatar) but no longer renders:
     ray visibility off (EEVEE and Cycles), only its bounds in the viewport (its wireframe
-    covered the avatar)."""
+    covered the avatar), its Basis shape pinned: nothing draws the head's shape any more, so
+    Blender need not add its 100-odd expression keys into it at every frame (two thirds of
+    its own frame change in a crowd), while the keys' values, which drive the avatar, are
+    still evaluated."""
     for flag in (
         "visible_camera",
         "visible_diffuse",
@@ -149,6 +152,9 @@ def _make_room(head, scene) -> None:
     ):
         setattr(head, flag, False)
     head.display_type = "BOUNDS"
+    if head.data.shape_keys is not None:
+        head.active_shape_key_index = 0
+        head.show_only_shape_key = True
     scene.render.use_lock_interface = True  # the handlers edit the points during renders
     cycles = getattr(scene, "cycles", None)
     if cycles is not None:

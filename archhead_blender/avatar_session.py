@@ -27,7 +27,7 @@ from archhead_addon.flame.model import FlameModel, load_model
 from archhead_addon.io.digest import file_digest
 from archhead_addon.splat.frame import SplatFrame
 
-from .preferences import get_preferences
+from .preferences import get_preferences, memory_total_bytes
 from .state import STATE, drop_user, forget_object, object_uids
 
 PRECISION = "fp32"
@@ -126,14 +126,19 @@ class SharedDecoder:
 
     def use(self, uid: int, memory_mb: int) -> None:
         """Count an avatar among the users: the memory cache holds the sum of their budgets
-        (each head's frames are its own; a shared budget would evict a crowd's every frame),
-        and the per-resolution tables grow with the heads, each at its own resolution (a
-        table rebuilt costs about a decode)."""
+        (each head's frames are its own; a shared budget would evict a crowd's every frame)
+        within the share of all avatars' memory (balance_memory), and the per-resolution
+        tables grow with the heads, each at its own resolution (a table rebuilt costs about a
+        decode)."""
         self.budgets[uid] = memory_mb << 20
         self._resize()
 
+    @property
+    def wanted_bytes(self) -> int:
+        return sum(self.budgets.values())
+
     def _resize(self) -> None:
-        self.memory.max_bytes = sum(self.budgets.values())
+        balance_memory()
         users = len(self.budgets)
         self.runtime.level.max_bytes = min(
             max(LEVEL_BYTES, users * LEVEL_BYTES_PER_HEAD), LEVEL_BYTES_MAX
@@ -211,6 +216,7 @@ class SharedDecoder:
                 **kwargs,
             )
             splat = SplatFrame.from_gaussians(gaussians)
+            STATE.decoded_since_release = True
             if self.disk is not None:
                 self.disk.put(key, splat)
             self._keep(key, splat)
@@ -244,6 +250,16 @@ class AvatarSession:
 
     def frame(self, codes, lod, view=None, sh_degree=None) -> tuple[str, SplatFrame]:
         return self.shared.frame(codes, lod, view, sh_degree)
+
+
+def balance_memory() -> None:
+    """Each shared decoder's memory cache: its users' budgets, scaled down together where
+    all of them would pass the preferences' total for all avatars."""
+    decoders = list(STATE.decoders.values())
+    wanted = sum(d.wanted_bytes for d in decoders)
+    scale = min(1.0, memory_total_bytes() / wanted) if wanted else 1.0
+    for d in decoders:
+        d.memory.resize(int(d.wanted_bytes * scale))
 
 
 def shared_decoder(key: tuple, obj) -> SharedDecoder:

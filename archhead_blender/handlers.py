@@ -18,6 +18,7 @@ import bpy
 from bpy.app.handlers import persistent
 
 from archhead_addon.avatar.frame_selection import held_frame
+from archhead_addon.heap import release_free_memory
 from archhead_addon.io.errors import InputError
 from archhead_addon.splat.frame import SplatFrame
 
@@ -99,11 +100,18 @@ def refresh_scene(scene, depsgraph) -> None:
     prune_sessions()  # an avatar deleted or purged since the last update frees its memory
     if STATE.suspended:
         return
+    # Free pages go back to the system after a pass that decoded (its temporaries) and once
+    # more at the next pass (what Blender freed evaluating the points written).
+    if STATE.decoded_since_release:
+        STATE.decoded_since_release = False
+        release_free_memory()
     STATE.file_stamps = {}  # each checkpoint file is asked for its time once in this pass
     try:
         _refresh_avatars(scene, depsgraph)
     finally:
         STATE.file_stamps = None
+    if STATE.decoded_since_release:
+        release_free_memory()
 
 
 def _refresh_avatars(scene, depsgraph) -> None:

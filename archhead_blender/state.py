@@ -52,6 +52,9 @@ class RuntimeState:
     objects_seen: int = -1
     # Nesting depth of bulk work that moves frames itself (handlers pause meanwhile).
     suspended: int = 0
+    # A frame was decoded since the pass before the last refresh of the scene: it asks the
+    # allocator to return free pages (heap.py).
+    decoded_since_release: bool = False
     # The training run the panel shows (training.TrainingRun), if one is going.
     training_run: Any = None
     # The tracking run the panel shows (tracking.TrackingRun), if one is going.

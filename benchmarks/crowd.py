@@ -1,7 +1,7 @@
 """Benchmark: many avatars in one scene, the scene continuous LOD is for.
 
     python benchmarks/crowd.py [--heads 4,16,64] [--avatars demo,full] [--size 1280x720]
-                               [--frames 5] [--json FILE]
+                               [--frames 5] [--memory-total MB] [--json FILE]
                                [--picture PNG --checkpoint AVATAR.npz [--picture-heads 16]]
 
 For each head count N and avatar size, a fresh process (2 BLAS / OpenMP threads) builds the
@@ -17,11 +17,16 @@ costs equal trained ones'). Then it measures, each over --frames frames not seen
   avatar (all heads are imported first, then the avatars load);
 - a frame change (handlers decoding every avatar; the median over the frames) with the
   distance-driven levels and with every avatar held at LOD 0, and their ratio; and with the
-  add-on paused (Blender evaluating the rigs alone: the part no level of detail changes);
+  add-on paused (Blender evaluating the rigs alone: the part no level of detail changes),
+  and paused with each head's shape evaluated from its keys (what Load Avatar's pinning of
+  the Basis saves);
 - Decode Frames over the whole crowd (one pass), per head and frame;
 - the add-on's handler on frames already decoded, per head: showing a cached frame (its
   codes read from the rig, the frame found, its points written), and with nothing to change;
-- an exact render of one frame at --size (the default culling: "Renders"), driven and LOD 0.
+- an exact render of one frame at --size (the default culling: "Renders"), driven and LOD 0;
+- memory after playing the frames left with every avatar at LOD 0 (the most a frame takes):
+  the decoded frames the memory caches keep (within the preferences' memory for all avatars,
+  --memory-total to set it), RSS then and the run's peak.
 
 Prints a markdown table (and --json: the rows). --picture also renders a crowd of a trained
 avatar (--checkpoint; the untrained ones draw no face) and writes the driven render there.
@@ -44,9 +49,10 @@ NEAR, FAR = 0.5, 30.0  # where the heads stand
 DRIVE_NEAR, DRIVE_FAR = 0.5, 2.0
 
 
-def _rss_mb() -> float:
+def _rss_mb(field: str = "VmRSS") -> float:
+    """This process's resident memory now (VmHWM: its peak so far), MB."""
     for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith(field + ":"):
             return int(line.split()[1]) / 1024
     return float("nan")
 
@@ -76,11 +82,19 @@ ROLLED = ("expr", "jaw", "neck", "eyes", "rotation")
 def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], picture=False):
     """The crowd (module docstring); returns (scene, avatars, RSS in MB: one head with its
     avatar, what each further head adds by its import and by its avatar). The heads are all
-    imported before any avatar loads, so that neither part reuses memory the other freed."""
+    imported before any avatar loads, so that neither part reuses memory the other freed.
+    Each avatar figure is read once the scene has settled: after one more refresh, which
+    any edit, click or frame change brings, and which returns the free pages that Blender's
+    evaluation of the new points left (archhead_addon/heap.py)."""
     import bpy
     import numpy as np
 
     from archhead_blender import api
+    from archhead_blender.handlers import refresh_scene
+
+    def settled_rss() -> float:
+        refresh_scene(bpy.context.scene, bpy.context.evaluated_depsgraph_get())
+        return _rss_mb()
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
@@ -95,7 +109,7 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
     rss["heads"] = _rss_mb()
     _load(heads[:1], checkpoint)  # one head with its avatar: what every further one adds to
     scene.frame_set(0)
-    rss["one avatar"] = _rss_mb()
+    rss["one avatar"] = settled_rss()
     _load(heads[1:], checkpoint)  # one Load Avatar on every selected head
     scene.render.resolution_x, scene.render.resolution_y = size
     camera = scene.camera
@@ -120,7 +134,7 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
     extra = max(n - 1, 1)
     first = rss["one head"] + rss["one avatar"] - rss["heads"]
     per_head = (rss["heads"] - rss["one head"]) / extra
-    return scene, avatars, (first, per_head, (_rss_mb() - rss["one avatar"]) / extra)
+    return scene, avatars, (first, per_head, (settled_rss() - rss["one avatar"]) / extra)
 
 
 def _load(heads, checkpoint: Path) -> None:
@@ -136,13 +150,19 @@ def _load(heads, checkpoint: Path) -> None:
         raise SystemExit(f"could not load {checkpoint}")
 
 
-def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None) -> dict:
+def measure(
+    n: int, kind: str, frames: int, size: tuple[int, int], picture=None, memory_total=None
+) -> dict:
     import bpy
 
     from archhead_blender import api
     from archhead_blender.handlers import refresh_scene, resume, suspend
+    from archhead_blender.preferences import get_preferences
+    from archhead_blender.state import STATE
 
     api.enable_addon()
+    if memory_total is not None:
+        get_preferences(bpy.context).memory_total_mb = memory_total
     folder = api.scratch_folder("archhead_crowd_")
     if kind in ("demo", "full"):
         checkpoint = folder / f"avatar_{kind}.npz"
@@ -182,6 +202,13 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
     suspend()
     try:
         blender_ms = statistics.median(frame_change() for _ in range(frames))
+        # the same with each head's shape evaluated from its keys (Load Avatar pins its Basis)
+        heads = [obj.archhead_avatar.head for obj in avatars]
+        for head in heads:
+            head.show_only_shape_key = False
+        shapes_ms = statistics.median(frame_change() for _ in range(frames))
+        for head in heads:
+            head.show_only_shape_key = True
     finally:
         resume()
     decode_frames = [next(frame) for _ in range(frames)]
@@ -213,6 +240,15 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
         renders[name] = time.perf_counter() - start
     if picture:
         _picture(next((out / "driven").glob("*.png")), picture)
+    # playback of the frames left, every avatar at LOD 0 (the most memory a frame takes):
+    # what the memory caches keep, and the process's peak over the whole run
+    for s in sessions:
+        s.lod_override = 0.0
+    played = 0
+    for f in frame:
+        scene.frame_set(f)
+        played += 1
+    cached_mb = sum(d.memory.nbytes for d in STATE.decoders.values()) / 2**20
     return {
         "heads": n,
         "avatar": kind,
@@ -228,11 +264,16 @@ def measure(n: int, kind: str, frames: int, size: tuple[int, int], picture=None)
         "frame_change_ms_driven": round(driven_ms),
         "frame_change_ms_lod0": round(lod0_ms),
         "frame_change_ms_blender": round(blender_ms),
+        "frame_change_ms_blender_shapes": round(shapes_ms),
         "decode_ms_per_head_frame": round(decode_ms, 1),
         "handler_ms_per_head_cached": round(cached_ms, 2),
         "handler_ms_per_head_idle": round(idle, 3),
         "render_s_driven": round(renders["driven"], 2),
         "render_s_lod0": round(renders["lod0"], 2),
+        "frames_played_lod0": played,
+        "cached_mb_after_play": round(cached_mb),
+        "rss_end_mb": round(_rss_mb()),
+        "rss_peak_mb": round(_rss_mb("VmHWM")),
     }
 
 
@@ -258,23 +299,26 @@ def _picture(render: Path, picture: Path) -> None:
 def table(rows: list[dict]) -> str:
     lines = [
         "| N | avatar | Gaussians driven / LOD 0 "
-        "| frame change ms driven / LOD 0 (ratio) / add-on paused "
+        "| frame change ms driven / LOD 0 (ratio) / add-on paused (shapes evaluated) "
         "| Decode Frames ms per head-frame | handler ms per head: cached frame / idle "
         "| exact render s driven / LOD 0 | RSS first head / all "
-        "| MB per extra head: all = imported head + avatar |",
-        "|---:|---|---:|---|---:|---|---|---|---|",
+        "| MB per extra head: all = imported head + avatar "
+        "| after playing at LOD 0: frames cached / RSS / peak RSS, MB |",
+        "|---:|---|---:|---|---:|---|---|---|---|---|",
     ]
     for r in rows:
         ratio = r["frame_change_ms_driven"] / max(r["frame_change_ms_lod0"], 1)
         lines.append(
             f"| {r['heads']} | {r['avatar']} | {r['gaussians_driven']:,} / "
             f"{r['gaussians_lod0']:,} | {r['frame_change_ms_driven']} / "
-            f"{r['frame_change_ms_lod0']} ({ratio:.2f}x) / {r['frame_change_ms_blender']} | "
+            f"{r['frame_change_ms_lod0']} ({ratio:.2f}x) / {r['frame_change_ms_blender']} "
+            f"({r['frame_change_ms_blender_shapes']}) | "
             f"{r['decode_ms_per_head_frame']} | "
             f"{r['handler_ms_per_head_cached']} / {r['handler_ms_per_head_idle']} | "
-            f"{r['render_s_driven']} / {r['render_s_lod0']} | {r['rss_first_mb']} / "
-            f"{r['rss_all_mb']} MB | {r['mb_per_extra_head']} = {r['mb_per_extra_rig']} + "
-            f"{r['mb_per_extra_avatar']} |"
+            f"{r['render_s_driven']} / {r['render_s_lod0']} | {r['rss_first_mb']:,} / "
+            f"{r['rss_all_mb']:,} MB | {r['mb_per_extra_head']} = {r['mb_per_extra_rig']} + "
+            f"{r['mb_per_extra_avatar']} | {r['cached_mb_after_play']:,} / "
+            f"{r['rss_end_mb']:,} / {r['rss_peak_mb']:,} |"
         )
     return "\n".join(lines)
 
@@ -289,6 +333,11 @@ def main(argv=None) -> None:
     parser.add_argument("--picture", type=Path, help="write a driven render of a crowd here")
     parser.add_argument("--checkpoint", type=Path, help="the trained avatar of --picture")
     parser.add_argument("--picture-heads", type=int, default=16)
+    parser.add_argument(
+        "--memory-total",
+        type=int,
+        help="the preferences' memory for all avatars, MB (default: the preference's)",
+    )
     parser.add_argument("--one", help=argparse.SUPPRESS)  # N,kind: measure in this process
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
@@ -297,7 +346,7 @@ def main(argv=None) -> None:
 
         restart_with_threads(2)  # before bpy and numpy load their thread pools
         n, kind = args.one.split(",", 1)
-        row = measure(int(n), kind, args.frames, size, args.picture)
+        row = measure(int(n), kind, args.frames, size, args.picture, args.memory_total)
         print("ROW " + json.dumps(row), flush=True)
         return
     if (args.picture is None) != (args.checkpoint is None):
@@ -306,6 +355,8 @@ def main(argv=None) -> None:
     def child(n: int, kind: str, picture=None) -> dict:
         command = [sys.executable, __file__, "--one", f"{n},{kind}"]
         command += ["--frames", str(args.frames), "--size", args.size]
+        if args.memory_total is not None:
+            command += ["--memory-total", str(args.memory_total)]
         command += ["--picture", str(picture.resolve())] if picture else []
         done = subprocess.run(command, capture_output=True, text=True)
         row = [line for line in done.stdout.splitlines() if line.startswith("ROW ")]

@@ -89,6 +89,8 @@ def test_memory_cache_drops_least_recently_used_by_bytes():
     cache.put("c", frames["c"])
     assert "b" not in cache and "a" in cache and "c" in cache
     assert cache.nbytes == 2 * frames["a"].nbytes
+    cache.resize(frames["a"].nbytes)  # a smaller budget evicts at once, the oldest first
+    assert "a" not in cache and "c" in cache and cache.nbytes == frames["c"].nbytes
 
 
 def test_disk_cache_round_trip_and_damaged_files(tmp_path):

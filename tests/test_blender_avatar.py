@@ -74,6 +74,7 @@ def test_points_are_the_decoded_codes_of_the_head(avatar):
     assert obj.parent == head.parent and obj.modifiers[0].node_group.name == "ArchHead Gaussians"
     np.testing.assert_allclose(np.array(obj.matrix_world), FLAME_TO_BLENDER, atol=1e-6)
     assert not head.visible_camera and head.display_type == "BOUNDS"
+    assert head.show_only_shape_key and head.active_shape_key_index == 0  # keys still drive
     assert bpy.context.scene.render.use_lock_interface
     for frame in (1, 4):
         bpy.context.scene.frame_set(frame)

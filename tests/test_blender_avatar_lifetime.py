@@ -9,6 +9,8 @@ import sys
 import bpy
 import pytest
 
+from archhead_addon.heap import release_free_memory
+
 pytestmark = pytest.mark.blender
 
 CYCLES = int(os.environ.get("ARCHHEAD_LIFETIME_CYCLES", 15))
@@ -17,7 +19,10 @@ LIMIT_MB = 50.0
 
 
 def rss_mb() -> float:
-    """Resident memory of this process now (not the peak that `resource` reports)."""
+    """Resident memory of this process now (not the peak that `resource` reports), once the
+    allocators have returned their free pages: what the process holds, not where the
+    allocator's holes happen to lie at that moment."""
+    release_free_memory()
     with open("/proc/self/status") as f:
         for line in f:
             if line.startswith("VmRSS:"):

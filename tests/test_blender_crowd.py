@@ -85,6 +85,30 @@ def test_copies_share_one_decoder_and_decode_in_one_pass(tmp_path, demo_scene, t
     assert not state.decoders and not state.retired
 
 
+def test_all_avatars_frames_stay_within_the_preferences_total(
+    tmp_path, demo_scene, tiny_checkpoint
+):
+    """Each avatar's Memory cache adds to its decoder's, but all of them together stay within
+    the add-on preferences' total (a crowd's frames would pass the machine's memory)."""
+    session = _module("avatar_session").session
+    prefs = _module("preferences").get_preferences(bpy.context)
+    head, _ = demo_scene(tmp_path)
+    original = _avatar_set(head, tiny_checkpoint)
+    copy = _duplicate(list(original), linked=False)
+    bpy.context.scene.frame_set(1)
+    memory = session(original[2]).shared.memory
+    assert session(copy[2]).shared.memory is memory
+    each = original[2].archhead_avatar.memory_mb << 20
+    total = prefs.memory_total_mb
+    try:
+        prefs.memory_total_mb = 64  # below the two avatars' 2 x 1024 MB: scaled down to it
+        assert memory.max_bytes == 64 << 20 < 2 * each
+        prefs.memory_total_mb = 4 * (each >> 20)  # above their sum: each keeps its own
+        assert memory.max_bytes == 2 * each
+    finally:
+        prefs.memory_total_mb = total
+
+
 def test_a_frame_decoded_ahead_serves_culling_without_a_new_decode(
     tmp_path, demo_scene, tiny_checkpoint
 ):

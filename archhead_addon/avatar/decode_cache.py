@@ -52,6 +52,14 @@ class MemoryCache:
             self.nbytes -= self._frames.pop(key).nbytes
         self._frames[key] = frame
         self.nbytes += frame.nbytes
+        self._evict()
+
+    def resize(self, max_bytes: int) -> None:
+        """A new budget; a smaller one evicts at once."""
+        self.max_bytes = int(max_bytes)
+        self._evict()
+
+    def _evict(self) -> None:
         while self.nbytes > self.max_bytes and len(self._frames) > 1:
             self.nbytes -= self._frames.popitem(last=False)[1].nbytes
 

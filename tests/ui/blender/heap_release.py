@@ -1,0 +1,33 @@
+"""The add-on hands freed memory back to the system under this Python's allocator (Debian's
+Blender 4.3: jemalloc; 5.2: TBB's scalable allocator; plain Python and the bpy module:
+glibc's malloc, tests/test_heap.py): a decode's pattern of temporaries freed between arrays
+that stay, then `release_free_memory`. Prints HEAP_RELEASED_MB.
+
+    blender -b --python heap_release.py        python heap_release.py
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from archhead_addon.heap import release_free_memory
+
+
+def rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise SystemExit("no VmRSS in /proc/self/status")
+
+
+big = np.ones(20 << 18, np.float32)
+del big
+kept, freed = [], []
+for _ in range(200):
+    freed.append(np.ones(1 << 18, np.float32))  # 1 MB, touched
+    kept.append(np.ones(1 << 12, np.float32))
+before = rss_mb()
+del freed
+if not release_free_memory():
+    raise SystemExit("no allocator call found to release free memory")
+print(f"HEAP_RELEASED_MB {before - rss_mb():.0f} (kept {len(kept)})")
