@@ -5,13 +5,15 @@ tables that stay, and the C allocator keeps such holes mapped: a crowd of 16 ful
 avatars held 100-130 MB of them after loading (7-8 MB a head, about its level tables' share).
 Blender on Linux runs on glibc's malloc (the bpy module), jemalloc (Debian's 4.3) or TBB's
 scalable allocator (Debian's 5.2), each with its own call that returns free pages; where
-none is found (Windows) `release_free_memory` does nothing.
+none is found (Windows) `release_free_memory` does nothing. `resident_mb` reads what the
+process holds (the benchmarks' and tests' one reading of it).
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+from pathlib import Path
 
 ALL_ARENAS = b"arena.4096.purge"  # jemalloc >= 4.5: MALLCTL_ARENAS_ALL
 CLEAN_ALL_BUFFERS = 0  # TBB's ScalableAllocationCmd TBBMALLOC_CLEAN_ALL_BUFFERS
@@ -48,3 +50,16 @@ def release_free_memory() -> bool:
     for call in calls:
         call()
     return bool(calls)
+
+
+def resident_mb(field: str = "VmRSS") -> float:
+    """This process's resident memory now, MB (`field` "VmHWM": its peak so far); NaN where
+    /proc/self/status cannot tell (not Linux)."""
+    try:
+        lines = Path("/proc/self/status").read_text().splitlines()
+    except OSError:
+        return float("nan")
+    for line in lines:
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) / 1024
+    return float("nan")

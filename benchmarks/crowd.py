@@ -43,18 +43,12 @@ import sys
 import time
 from pathlib import Path
 
+from archhead_addon.heap import resident_mb
+
 NEAR, FAR = 0.5, 30.0  # where the heads stand
 # The driver: by screen size, S_max at 0.5 m and S_min at 4 x that (the same Gaussians per
 # pixel of a head everywhere; docs/blender_avatar.md, "Level of detail")
 DRIVE_NEAR, DRIVE_FAR = 0.5, 2.0
-
-
-def _rss_mb(field: str = "VmRSS") -> float:
-    """This process's resident memory now (VmHWM: its peak so far), MB."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def _sequence(folder: Path, i: int, offset: bool = True) -> Path:
@@ -94,7 +88,7 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
 
     def settled_rss() -> float:
         refresh_scene(bpy.context.scene, bpy.context.evaluated_depsgraph_get())
-        return _rss_mb()
+        return resident_mb()
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
@@ -105,8 +99,8 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
             raise SystemExit(f"could not import {path}")
         heads.append(bpy.data.objects[path.stem])
         bpy.context.view_layer.update()  # Blender's evaluated copies (of the shape keys too)
-        rss.setdefault("one head", _rss_mb())
-    rss["heads"] = _rss_mb()
+        rss.setdefault("one head", resident_mb())
+    rss["heads"] = resident_mb()
     _load(heads[:1], checkpoint)  # one head with its avatar: what every further one adds to
     scene.frame_set(0)
     rss["one avatar"] = settled_rss()
@@ -272,8 +266,8 @@ def measure(
         "render_s_lod0": round(renders["lod0"], 2),
         "frames_played_lod0": played,
         "cached_mb_after_play": round(cached_mb),
-        "rss_end_mb": round(_rss_mb()),
-        "rss_peak_mb": round(_rss_mb("VmHWM")),
+        "rss_end_mb": round(resident_mb()),
+        "rss_peak_mb": round(resident_mb("VmHWM")),
     }
 
 

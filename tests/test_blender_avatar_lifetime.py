@@ -9,7 +9,7 @@ import sys
 import bpy
 import pytest
 
-from archhead_addon.heap import release_free_memory
+from archhead_addon.heap import release_free_memory, resident_mb
 
 pytestmark = pytest.mark.blender
 
@@ -23,11 +23,7 @@ def rss_mb() -> float:
     allocators have returned their free pages: what the process holds, not where the
     allocator's holes happen to lie at that moment."""
     release_free_memory()
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    raise RuntimeError("no VmRSS in /proc/self/status")
+    return resident_mb()
 
 
 def _state():

@@ -6,19 +6,9 @@ that stay, then `release_free_memory`. Prints HEAP_RELEASED_MB.
     blender -b --python heap_release.py        python heap_release.py
 """
 
-from pathlib import Path
-
 import numpy as np
 
-from archhead_addon.heap import release_free_memory
-
-
-def rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise SystemExit("no VmRSS in /proc/self/status")
-
+from archhead_addon.heap import release_free_memory, resident_mb
 
 big = np.ones(20 << 18, np.float32)
 del big
@@ -26,8 +16,8 @@ kept, freed = [], []
 for _ in range(200):
     freed.append(np.ones(1 << 18, np.float32))  # 1 MB, touched
     kept.append(np.ones(1 << 12, np.float32))
-before = rss_mb()
+before = resident_mb()
 del freed
 if not release_free_memory():
     raise SystemExit("no allocator call found to release free memory")
-print(f"HEAP_RELEASED_MB {before - rss_mb():.0f} (kept {len(kept)})")
+print(f"HEAP_RELEASED_MB {before - resident_mb():.0f} (kept {len(kept)})")
