@@ -9,6 +9,7 @@ A decoded frame set is hundreds of MB: unpruned, fifteen deleted avatars hold 2.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,7 +22,7 @@ from archhead_addon.avatar.culling import REACH_PAD, SIGMAS, ViewFrustum
 from archhead_addon.avatar.decode_cache import DiskCache, MemoryCache, frame_key
 from archhead_addon.avatar.lod import resolution_for_lod
 from archhead_addon.avatar.point_attributes import point_attributes
-from archhead_addon.avatar.runtime import LEVEL_BYTES, AvatarRuntime
+from archhead_addon.avatar.runtime import LEVEL_BYTES, AvatarRuntime, decode_batch
 from archhead_addon.avatar.scene_codes import FrameCodes, expression_joint_dirs
 from archhead_addon.flame.model import FlameModel, load_model
 from archhead_addon.io.digest import file_digest
@@ -195,32 +196,92 @@ class SharedDecoder:
         view: ViewFrustum | None = None,
         sh_degree: int | None = None,
     ) -> tuple[str, SplatFrame]:
-        """(key, Gaussians) from memory, the disk cache or a fresh decode; `view` culls to
-        a camera: from the whole frame when a cache holds it (cheap, so frames decoded
-        ahead serve every camera), else decoded culled and cached under that camera;
-        `sh_degree` overrides the bands the display decodes."""
-        key = self.key(codes, lod, view, sh_degree)
+        """(key, Gaussians) from memory, the disk cache or a fresh decode (`resolve_frames`
+        of this one request)."""
+        found = resolve_frames([FrameRequest(self, codes, lod, view, sh_degree)])[0]
+        if isinstance(found, Exception):
+            raise found
+        return found
+
+    def lookup(self, request: FrameRequest) -> tuple[str, SplatFrame | None]:
+        """(key, Gaussians) of a request from memory or the disk cache, None where it needs
+        a decode. A culled request is cut from the whole frame when a cache holds it (cheap,
+        so frames decoded ahead serve every camera), else decoded culled and cached under
+        its camera."""
+        codes, lod, view, degree = request.codes, request.lod, request.view, request.sh_degree
+        key = self.key(codes, lod, view, degree)
         splat = self.cached(key)
         if splat is None and view is not None:
-            whole = self.cached(self.key(codes, lod, None, sh_degree))
+            whole = self.cached(self.key(codes, lod, None, degree))
             if whole is not None:
                 return key, cull_frame(whole, view)
-        if splat is None:
-            kwargs = codes.as_kwargs()
-            kwargs["expr"] = kwargs["expr"][: self.n_expr]
-            gaussians = self.runtime.decode(
-                resolution_for_lod(lod)[0],
-                precision=PRECISION,
-                sh_degree=self.sh_degree if sh_degree is None else sh_degree,
-                view=view,
-                **kwargs,
-            )
-            splat = SplatFrame.from_gaussians(gaussians)
-            STATE.decoded_since_release = True
-            if self.disk is not None:
-                self.disk.put(key, splat)
-            self._keep(key, splat)
         return key, splat
+
+    def decode(self, request: FrameRequest) -> CachedFrame:
+        """A fresh decode of a request, as its cache entry: numpy alone, so that
+        `resolve_frames` runs several on threads of their own (nothing here touches bpy or
+        the caches)."""
+        kwargs = request.codes.as_kwargs()
+        kwargs["expr"] = kwargs["expr"][: self.n_expr]
+        gaussians = self.runtime.decode(
+            resolution_for_lod(request.lod)[0],
+            precision=PRECISION,
+            sh_degree=self.sh_degree if request.sh_degree is None else request.sh_degree,
+            view=request.view,
+            **kwargs,
+        )
+        splat = SplatFrame.from_gaussians(gaussians)
+        return CachedFrame(splat, point_attributes(splat, None, self.colour_space))
+
+    def store(self, key: str, entry: CachedFrame) -> SplatFrame:
+        """Keep a decoded frame in the memory cache (and the disk cache)."""
+        STATE.decoded_since_release = True
+        if self.disk is not None:
+            self.disk.put(key, entry.splat)
+        self.memory.put(key, entry)
+        return entry.splat
+
+
+@dataclass(frozen=True)
+class FrameRequest:
+    """A frame an avatar is to show: its codes and level of detail, the camera it is culled
+    to (or None) and the SH bands, when not the display's."""
+
+    decoder: SharedDecoder
+    codes: FrameCodes
+    lod: float
+    view: ViewFrustum | None = None
+    sh_degree: int | None = None
+
+    def texels(self) -> int:
+        return self.decoder.texels(self.decoder.runtime.resolution(self.lod))
+
+
+def resolve_frames(requests: list[FrameRequest]) -> list:
+    """Each request's (key, Gaussians): from the caches, else decoded. The decodes run
+    together (`decode_batch`: a crowd's heads on every core at once, benchmarks/crowd.py),
+    each frame once however many requests ask for it. A decode that fails leaves its
+    exception in its requests' places."""
+    results: list = [None] * len(requests)
+    wanted: dict[tuple, tuple[str, FrameRequest, list[int]]] = {}
+    for i, request in enumerate(requests):
+        key, splat = request.decoder.lookup(request)
+        if splat is not None:
+            results[i] = (key, splat)
+        else:
+            wanted.setdefault((id(request.decoder), key), (key, request, []))[2].append(i)
+    if not wanted:
+        return results
+    jobs = list(wanted.values())
+    entries = decode_batch(
+        [functools.partial(request.decoder.decode, request) for _, request, _ in jobs],
+        [request.texels() for _, request, _ in jobs],
+    )
+    for (key, request, places), entry in zip(jobs, entries, strict=True):
+        found = entry if isinstance(entry, Exception) else (key, request.decoder.store(key, entry))
+        for i in places:
+            results[i] = found
+    return results
 
 
 class AvatarSession:

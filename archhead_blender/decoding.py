@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from archhead_addon.avatar.frame_selection import frames_to_decode
 
-from .avatar_session import Decoded, session
+from .avatar_session import Decoded, FrameRequest, resolve_frames, session
 from .crowd import scene_lods
 from .handlers import refresh_scene, resume, suspend
 from .scene_state import avatar_lod, frame_codes, head_rig, keyed_frames
@@ -35,13 +35,18 @@ def decode_frame(context, objs, frame: int) -> None:
     context.scene.frame_set(frame)
     depsgraph = context.evaluated_depsgraph_get()
     budgeted = scene_lods(context.scene, depsgraph) or {}  # the whole scene's, when it has one
+    requests = []
     for obj, avatar in avatars:
         codes = frame_codes(obj.archhead_avatar.head, depsgraph, avatar.joint_dirs)
         lod = budgeted.get(obj.session_uid, avatar.lod_override)
         if lod is None:
             lod = avatar_lod(obj, depsgraph)
-        key, _ = avatar.frame(codes, lod)
-        avatar.decoded[frame] = Decoded(key, codes, lod)
+        requests.append(FrameRequest(avatar.shared, codes, lod))
+    found_all = resolve_frames(requests)  # decoded together: a crowd's heads on every core
+    for (_, avatar), request, found in zip(avatars, requests, found_all, strict=True):
+        if isinstance(found, Exception):
+            raise found
+        avatar.decoded[frame] = Decoded(found[0], request.codes, request.lod)
 
 
 def scene_plan(scene, objs, frames=None) -> list[tuple[int, list]]:

@@ -23,7 +23,7 @@ from archhead_addon.io.errors import InputError
 from archhead_addon.splat.frame import SplatFrame
 
 from .avatar_props import is_avatar
-from .avatar_session import forget_shown, prune_sessions, session
+from .avatar_session import FrameRequest, forget_shown, prune_sessions, resolve_frames, session
 from .crowd import scene_budget, scene_lods
 from .lod_driver import follow_scene_camera
 from .point_instances import write_points
@@ -40,7 +40,7 @@ def resume() -> None:
     STATE.suspended = max(STATE.suspended - 1, 0)
 
 
-def frame_to_show(
+def frame_request(
     obj,
     scene,
     depsgraph,
@@ -48,13 +48,13 @@ def frame_to_show(
     full_colour: bool = False,
     avatar=None,
     lod: float | None = None,
-) -> tuple[str, SplatFrame]:
-    """(cache key, Gaussians) the avatar shows at the scene's frame: the codes and level of
-    detail there, or with "Hold" between decoded frames, the last decoded frame's; `culled`
-    leaves out what the scene camera cannot see (archhead_addon.avatar.culling),
-    `full_colour` decodes every SH band even where the display shows the DC term (export);
-    `avatar`: the object's session when the caller has it; `lod`: the level the scene's
-    Gaussian budget gives it (crowd.scene_lods), else its own."""
+) -> FrameRequest:
+    """The frame the avatar shows at the scene's frame: the codes and level of detail there,
+    or with "Hold" between decoded frames, the last decoded frame's; `culled` leaves out
+    what the scene camera cannot see (archhead_addon.avatar.culling), `full_colour` decodes
+    every SH band even where the display shows the DC term (export); `avatar`: the object's
+    session when the caller has it; `lod`: the level the scene's Gaussian budget gives it
+    (crowd.scene_lods), else its own."""
     avatar = avatar or session(obj)
     settings = obj.archhead_avatar
     view = camera_frustum(obj, scene, depsgraph) if culled else None
@@ -64,13 +64,19 @@ def frame_to_show(
         held = held_frame(sorted(avatar.decoded), frame)
         if held is not None:
             record = avatar.decoded[held]
-            return avatar.frame(record.codes, record.lod, view, degree)
+            return FrameRequest(avatar.shared, record.codes, record.lod, view, degree)
     codes = frame_codes(settings.head, depsgraph, avatar.joint_dirs)
     if lod is None:
         lod = avatar.lod_override
     if lod is None:
         lod = avatar_lod(obj, depsgraph)
-    return avatar.frame(codes, lod, view, degree)
+    return FrameRequest(avatar.shared, codes, lod, view, degree)
+
+
+def frame_to_show(obj, scene, depsgraph, culled=False, full_colour=False, lod=None):
+    """(cache key, Gaussians) of `frame_request`, from the caches or decoded."""
+    request = frame_request(obj, scene, depsgraph, culled, full_colour, lod=lod)
+    return request.decoder.frame(request.codes, request.lod, request.view, request.sh_degree)
 
 
 def culls(obj, depsgraph) -> bool:
@@ -83,8 +89,16 @@ def refresh_avatar(obj, scene, depsgraph, lod: float | None = None) -> bool:
     """Bring one avatar's points up to date (at `lod` when the scene's budget sets it); True
     if they were rewritten."""
     avatar = session(obj)
-    culled = culls(obj, depsgraph)
-    key, splat = frame_to_show(obj, scene, depsgraph, culled, avatar=avatar, lod=lod)
+    request = frame_request(obj, scene, depsgraph, culls(obj, depsgraph), avatar=avatar, lod=lod)
+    found = resolve_frames([request])[0]
+    if isinstance(found, Exception):
+        raise found
+    return _show(obj, avatar, found, scene, depsgraph)
+
+
+def _show(obj, avatar, found: tuple[str, SplatFrame], scene, depsgraph) -> bool:
+    """Write a resolved frame into the avatar's points, unless they show it already."""
+    key, splat = found
     view_from = None
     if avatar.sh_degree > 0:  # view-dependent colour on an avatar that has it
         view_from = camera_in_object(obj, scene, depsgraph)
@@ -114,25 +128,46 @@ def refresh_scene(scene, depsgraph) -> None:
         release_free_memory()
 
 
+_AVATAR_ERRORS = (InputError, OSError, ValueError, KeyError)  # an avatar's, said in the console
+
+
 def _refresh_avatars(scene, depsgraph) -> None:
+    """Every avatar's frame found first, the missing ones decoded together
+    (`resolve_frames`), then each avatar's points written."""
     lods = None
     if scene_budget(scene):
         try:
             lods = scene_lods(scene, depsgraph)
-        except (InputError, OSError, ValueError, KeyError) as exc:
+        except _AVATAR_ERRORS as exc:
             print(f"ArchHead: the scene's Gaussian budget is not applied: {exc}")
+    pending = []
     for obj in scene.objects:
         if not is_avatar(obj):
             continue
         try:
             follow_scene_camera(obj, scene)  # takes effect at the next evaluation
             lod = None if lods is None else lods.get(obj.session_uid)
-            refresh_avatar(obj, scene, depsgraph, lod)
+            avatar = session(obj)
+            culled = culls(obj, depsgraph)
+            request = frame_request(obj, scene, depsgraph, culled, avatar=avatar, lod=lod)
+            pending.append((obj, avatar, request))
+        except _AVATAR_ERRORS as exc:
+            _report(obj, exc)
+    found = resolve_frames([request for _, _, request in pending])
+    for (obj, avatar, _), frame in zip(pending, found, strict=True):
+        try:
+            if isinstance(frame, Exception):
+                raise frame
+            _show(obj, avatar, frame, scene, depsgraph)
             STATE.errors.pop(obj.session_uid, None)
-        except (InputError, OSError, ValueError, KeyError) as exc:
-            if STATE.errors.get(obj.session_uid) != str(exc):  # say it once, not every update
-                print(f"ArchHead: {obj.name}: {exc}")
-            STATE.errors[obj.session_uid] = str(exc)
+        except _AVATAR_ERRORS as exc:
+            _report(obj, exc)
+
+
+def _report(obj, exc: Exception) -> None:
+    if STATE.errors.get(obj.session_uid) != str(exc):  # say it once, not every update
+        print(f"ArchHead: {obj.name}: {exc}")
+    STATE.errors[obj.session_uid] = str(exc)
 
 
 @persistent

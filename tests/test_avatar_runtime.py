@@ -1,8 +1,10 @@
 """The numpy runtime against the torch model, its caches, its fp16 path, and no torch import."""
 
+import functools
 import subprocess
 import sys
 import textwrap
+import threading
 
 import numpy as np
 import pytest
@@ -13,8 +15,8 @@ from test_uv_sphere_head import sphere_head
 from archhead_addon.avatar.checkpoint import save_avatar
 from archhead_addon.avatar.checkpoint_format import read_checkpoint
 from archhead_addon.avatar.config import ablation
-from archhead_addon.avatar.runtime import AvatarRuntime
-from archhead_addon.threads import default_threads
+from archhead_addon.avatar.runtime import AvatarRuntime, decode_batch
+from archhead_addon.threads import default_threads, machine_cores
 
 
 @pytest.fixture(scope="module")
@@ -80,11 +82,40 @@ def test_threads_decode_the_same_gaussians(saved):
             np.testing.assert_allclose(getattr(got, name), getattr(want, name), atol=1e-5)
 
 
+def test_a_batch_of_decodes_on_threads_gives_each_decode_alone(saved):
+    """decode_batch: several heads' frames decoded at once on threads of their own (a crowd)
+    give what each decodes alone, in the jobs' order; a failing job leaves its exception in
+    its place and the others still decode; a level that several ask for is built once."""
+    _, path, head = saved
+    alone = AvatarRuntime.load(path, flame=head, threads=1)
+    shared = AvatarRuntime.load(path, flame=head)
+    lods = [1.0, 0.0, 0.6, 1.0, 0.3, 1.0]  # four levels, one of them asked for three times
+    codes = [frame_codes(seed=s) for s in range(len(lods))]
+    threads = set()
+
+    def job(lod, **codes):
+        threads.add(threading.current_thread().name)
+        return shared.decode(lod, **codes)
+
+    jobs = [functools.partial(job, lod, **c) for lod, c in zip(lods, codes, strict=True)]
+    jobs.insert(2, functools.partial(job, 0.0, jaw=[np.nan, 0, 0]))  # fails past its level
+    results = decode_batch(jobs, [1.0] * len(jobs), threads=2)
+    if machine_cores() > 1:  # (one core: one after another, in this thread)
+        assert all(name.startswith("archhead-decode-batch") for name in threads), threads
+    assert isinstance(results.pop(2), ValueError)
+    for lod, c, got in zip(lods, codes, results, strict=True):
+        want = alone.decode(lod, **c)
+        assert got.resolution == want.resolution
+        for name in ATTRS:
+            np.testing.assert_allclose(getattr(got, name), getattr(want, name), atol=1e-5)
+    assert (shared.level.misses, shared.level.hits) == (4, len(jobs) - 4)
+
+
 def test_runtime_never_imports_torch(saved):
     _, path, head = saved
     script = textwrap.dedent(f"""
         import sys
-        from archhead_addon.avatar.runtime import AvatarRuntime
+        from archhead_addon.avatar.runtime import AvatarRuntime, decode_batch
         g = AvatarRuntime.load({str(path)!r}, flame={str(head)!r}).decode(0.5, jaw=[0.3, 0, 0])
         assert len(g) > 1000
         loaded = sorted(m for m in sys.modules if m == "torch" or m.startswith("torch."))

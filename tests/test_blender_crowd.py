@@ -148,6 +148,42 @@ def test_a_frame_decoded_ahead_serves_culling_without_a_new_decode(
     assert len(gone) == 0
 
 
+def test_a_scene_refresh_decodes_each_frame_once_and_a_failing_avatar_spares_the_others(
+    tmp_path, demo_scene, tiny_checkpoint
+):
+    """The handler finds every avatar's frame, decodes the missing ones together (two heads
+    that play the same codes share one decode) and then writes them; an avatar whose decode
+    fails keeps its points and says why, and the others still show the new frame."""
+    import shutil
+
+    session, state = _module("avatar_session").session, _module("state").STATE
+    head, _ = demo_scene(tmp_path)
+    original = _avatar_set(head, tiny_checkpoint)
+    copy = _duplicate(list(original), linked=False)
+    copy[1].location.x += 0.4
+    other = _avatar_set(*_duplicate([head], linked=False), shutil.copy(tiny_checkpoint, tmp_path))
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    shared, failing = session(original[2]).shared, session(other[2]).shared
+    assert session(copy[2]).shared is shared and failing is not shared
+    decode, calls = shared.decode, []
+    shared.decode = lambda request: calls.append(request) or decode(request)
+    failing.decode = lambda request: (_ for _ in ()).throw(ValueError("a broken frame"))
+    before = _points(other[2])
+    try:
+        scene.frame_set(3)
+    finally:
+        del shared.decode, failing.decode
+    assert len(calls) == 1, "two heads playing the same codes decoded their frame twice"
+    shown = {session(o[2]).shown[0] for o in (original, copy)}
+    assert shown == {shared.key(calls[0].codes, calls[0].lod)}
+    assert "a broken frame" in state.errors[other[2].session_uid]
+    assert original[2].session_uid not in state.errors and copy[2].session_uid not in state.errors
+    np.testing.assert_array_equal(_points(other[2]), before)
+    scene.frame_set(4)  # decodes again: the error is gone
+    assert other[2].session_uid not in state.errors
+
+
 def test_a_linked_duplicate_gets_points_of_its_own(tmp_path, demo_scene, tiny_checkpoint):
     head, _ = demo_scene(tmp_path)
     original = _avatar_set(head, tiny_checkpoint)

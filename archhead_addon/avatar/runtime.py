@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
@@ -52,15 +53,20 @@ LEVEL_BYTES = 256 << 20  # the per-S tables kept: a full-size avatar's S = 256 t
 
 class LevelCache:
     """`build(size, precision)`'s tables, least recently used out once their bytes pass
-    `max_bytes` (the newest always stays); `hits`, `misses` and `len()` for tests."""
+    `max_bytes` (the newest always stays); `hits`, `misses` and `len()` for tests. Safe to
+    call from several threads (`decode_batch`): a table asked for by two at once is built once."""
 
     def __init__(self, build, max_bytes: int):
         self.build, self.max_bytes = build, int(max_bytes)
         self._levels: dict[tuple, tuple[dict, int]] = {}  # insertion order: least recent first
         self.nbytes = self.hits = self.misses = 0
+        self._lock = threading.Lock()
 
     def __call__(self, size: int, precision: str) -> dict:
-        key = (int(size), precision)
+        with self._lock:
+            return self._get((int(size), precision))
+
+    def _get(self, key: tuple) -> dict:
         found = self._levels.pop(key, None)
         if found is not None:
             self.hits += 1
@@ -78,8 +84,9 @@ class LevelCache:
         return len(self._levels)
 
     def clear(self) -> None:
-        self._levels.clear()
-        self.nbytes = 0
+        with self._lock:
+            self._levels.clear()
+            self.nbytes = 0
 
 
 class AvatarRuntime:
@@ -170,8 +177,15 @@ class AvatarRuntime:
         level = self.level(size, precision)
         # The whole frame with BLAS held to one thread where the chunks decode on threads of
         # their own: OpenBLAS threads that FLAME's products woke kept spinning after them and
-        # slowed render loops (benchmarks/avatar_decode.py, docs/bench_decode.md).
-        with one_blas_thread() if self.threads > 1 else nullcontext(False) as held:
+        # slowed render loops (benchmarks/avatar_decode.py, docs/bench_decode.md). On a
+        # thread of `decode_batch`, which holds BLAS itself, the frame decodes on that thread.
+        batched = getattr(_BATCH, "blas_held", None)
+        if batched is not None:
+            hold, threads = nullcontext(batched), 1
+        else:
+            hold = one_blas_thread() if self.threads > 1 else nullcontext(False)
+            threads = self.threads
+        with hold as held:
             expr = None if expr is None else _code(expr, len(np.ravel(expr)), "expr")
             head = forward_full(
                 self.head,
@@ -216,7 +230,8 @@ class AvatarRuntime:
                 frame.colour_rows,
                 frame.write,
                 columns=columns,
-                threads=self.threads if held else 1,
+                threads=threads if held else 1,
+                row_by_row=held,
             )
         return frame.gaussians(level["texel"], size)
 
@@ -329,6 +344,7 @@ class _Network:
         write,
         columns=None,
         threads: int = 1,
+        row_by_row: bool = False,
     ) -> None:
         """The heads' raw outputs from the texels' positions (3, N), chunk by chunk: each
         chunk's, (width, n) per head, go to write(texel slice, outputs), on the thread that
@@ -336,7 +352,8 @@ class _Network:
         coefficients are coefficient-major). `columns`: the texels of `first` that the
         positions are (culling), gathered chunk by chunk rather than copied whole.
         `threads` decode chunks at once, each product on one BLAS thread: more than one only
-        while the caller holds BLAS to one thread (`one_blas_thread`)."""
+        while the caller holds BLAS to one thread (`one_blas_thread`), as `row_by_row` says
+        it does."""
         w_in = np.hstack([self.w_pe, frame_bias[:, None]])
         layers = dict(self.layers)
         hidden, (w_out, b_out) = layers["colour"]
@@ -363,7 +380,7 @@ class _Network:
 
         # On `threads` threads; in this thread alone, with BLAS threading each product, where
         # BLAS cannot be held to one.
-        out_product = _row_by_row if threads > 1 else np.matmul
+        out_product = _row_by_row if row_by_row else np.matmul
         if threads > 1:
             for _ in _pool(threads).map(chunk, _chunks(pos.shape[1], threads)):
                 pass  # (raises a worker's exception)
@@ -424,6 +441,41 @@ class _FrameOutputs:
         )
 
 
+_BATCH = threading.local()  # on decode_batch's threads: whether it holds BLAS to one thread
+
+
+def decode_batch(jobs: list, weights: list[float], threads: int = 0) -> list:
+    """Run `jobs` (callables, each decoding one frame, say one head of a crowd, and whatever
+    else it does in numpy) on `threads` threads at once, each job's decode on its own thread
+    with BLAS held to one: a crowd's many small decodes keep every core busy, where one
+    decode's chunks on all cores leave them waiting through FLAME, the chunks' hand-offs and
+    the Python between (benchmarks/crowd.py). The largest `weights` (texels, say) start
+    first, so that none ends alone. Returns each job's result, or the exception it raised,
+    in the order of `jobs`."""
+    threads = min(thread_count(threads), len(jobs))
+    order = sorted(range(len(jobs)), key=lambda i: -weights[i])
+    results: list = [None] * len(jobs)
+
+    def run(i: int, held: bool | None) -> None:
+        _BATCH.blas_held = held
+        try:
+            results[i] = jobs[i]()
+        except Exception as exc:  # the caller says which job failed, and goes on with the rest
+            results[i] = exc
+        finally:
+            _BATCH.blas_held = None
+
+    if threads > 1:
+        with one_blas_thread() as held:
+            if held:  # (else BLAS's own threads would crowd the jobs': one at a time below)
+                for _ in _pool(threads, "batch").map(lambda i: run(i, True), order):
+                    pass
+                return results
+    for i in order:  # one at a time, each decode on every core as it would alone
+        run(i, None)
+    return results
+
+
 def _row_by_row(w: np.ndarray, x: np.ndarray) -> np.ndarray:
     """w @ x, one matrix-vector product per row of w: 2-3x faster than OpenBLAS's matrix
     product for the heads' outputs (1-4 rows) on one BLAS thread; with several, far slower."""
@@ -442,9 +494,10 @@ def _chunks(n: int, threads: int) -> list[slice]:
 
 
 @functools.cache
-def _pool(threads: int) -> ThreadPoolExecutor:
-    """One pool per thread count, kept for the process (idle threads cost nothing)."""
-    return ThreadPoolExecutor(threads, thread_name_prefix="archhead-decode")
+def _pool(threads: int, kind: str = "chunks") -> ThreadPoolExecutor:
+    """One pool per thread count and kind (a batch's jobs, a decode's chunks), kept for the
+    process (idle threads cost nothing)."""
+    return ThreadPoolExecutor(threads, thread_name_prefix=f"archhead-decode-{kind}")
 
 
 def _relu_(x: np.ndarray) -> None:
