@@ -91,17 +91,23 @@ def test_a_batch_of_decodes_on_threads_gives_each_decode_alone(saved):
     shared = AvatarRuntime.load(path, flame=head)
     lods = [1.0, 0.0, 0.6, 1.0, 0.3, 1.0]  # four levels, one of them asked for three times
     codes = [frame_codes(seed=s) for s in range(len(lods))]
-    threads = set()
+    threads = {}  # job -> the thread it ran on
 
-    def job(lod, **codes):
-        threads.add(threading.current_thread().name)
+    def job(i, lod, **codes):
+        threads[i] = threading.current_thread().name
         return shared.decode(lod, **codes)
 
-    jobs = [functools.partial(job, lod, **c) for lod, c in zip(lods, codes, strict=True)]
-    jobs.insert(2, functools.partial(job, 0.0, jaw=[np.nan, 0, 0]))  # fails past its level
-    results = decode_batch(jobs, [1.0] * len(jobs), threads=2)
+    jobs = [
+        functools.partial(job, i, lod, **c)
+        for i, (lod, c) in enumerate(zip(lods, codes, strict=True))
+    ]
+    jobs.insert(2, functools.partial(job, -1, 0.0, jaw=[np.nan, 0, 0]))  # fails past its level
+    # job 1 outweighs an equal share of all: it decodes first, alone on every core
+    weights = [1.0, 20.0] + [1.0] * (len(jobs) - 2)
+    results = decode_batch(jobs, weights, threads=2)
     if machine_cores() > 1:  # (one core: one after another, in this thread)
-        assert all(name.startswith("archhead-decode-batch") for name in threads), threads
+        assert threads.pop(1) == threading.current_thread().name
+        assert all(name.startswith("archhead-decode-batch") for name in threads.values())
     assert isinstance(results.pop(2), ValueError)
     for lod, c, got in zip(lods, codes, results, strict=True):
         want = alone.decode(lod, **c)

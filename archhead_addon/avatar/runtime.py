@@ -449,9 +449,10 @@ def decode_batch(jobs: list, weights: list[float], threads: int = 0) -> list:
     else it does in numpy) on `threads` threads at once, each job's decode on its own thread
     with BLAS held to one: a crowd's many small decodes keep every core busy, where one
     decode's chunks on all cores leave them waiting through FLAME, the chunks' hand-offs and
-    the Python between (benchmarks/crowd.py). The largest `weights` (texels, say) start
-    first, so that none ends alone. Returns each job's result, or the exception it raised,
-    in the order of `jobs`."""
+    the Python between (benchmarks/crowd.py). `weights` (texels, say) balance the threads: a
+    job heavier than an equal share of what is left decodes first on every core, as it
+    would alone, and the others start largest first. Returns each job's result, or the
+    exception it raised, in the order of `jobs`."""
     threads = min(thread_count(threads), len(jobs))
     order = sorted(range(len(jobs)), key=lambda i: -weights[i])
     results: list = [None] * len(jobs)
@@ -465,7 +466,11 @@ def decode_batch(jobs: list, weights: list[float], threads: int = 0) -> list:
         finally:
             _BATCH.blas_held = None
 
-    if threads > 1:
+    left = float(sum(weights))
+    while order and threads > 1 and weights[order[0]] * threads > left:
+        left -= weights[order[0]]
+        run(order.pop(0), None)  # on every core, as alone
+    if threads > 1 and len(order) > 1:
         with one_blas_thread() as held:
             if held:  # (else BLAS's own threads would crowd the jobs': one at a time below)
                 for _ in _pool(threads, "batch").map(lambda i: run(i, True), order):
