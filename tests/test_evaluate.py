@@ -266,3 +266,17 @@ def test_levels_are_a_list_or_a_range():
     for bad in ("0:2:0.5", "1:0:0.5", "0:1:0", "a:b:c", "0,1.5"):
         with pytest.raises(SystemExit):
             lods(bad)
+
+
+def test_rods_and_needles_are_counted_apart():
+    """A flat disc (two long axes) counts as a needle (axis ratio over 10) but not as a rod; a
+    rod six times longer than wide draws a dash and is not a needle; a sphere is neither."""
+    from types import SimpleNamespace
+
+    from archhead_addon.evaluate.render import needle_share, rod_share
+
+    sphere, disc, rod = [1e-3, 1e-3, 1e-3], [1e-4, 5e-3, 5e-3], [1e-3, 6e-3, 1e-3]
+    g = SimpleNamespace(log_scales=np.log(np.array([sphere, disc, rod], np.float32)))
+    assert needle_share(g) == pytest.approx(1 / 3) and rod_share(g) == pytest.approx(1 / 3)
+    assert rod_share(SimpleNamespace(log_scales=np.log(np.array([disc, sphere])))) == 0
+    assert rod_share(SimpleNamespace(log_scales=np.zeros((0, 3)))) == 0

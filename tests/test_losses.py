@@ -175,6 +175,21 @@ def test_anisotropy_pulls_only_on_needles():
     assert log_scales.grad[1].tolist() == pytest.approx([-0.5, 0.0, 0.5])
 
 
+def test_the_rod_penalty_pulls_on_rods_and_leaves_discs():
+    from archhead_addon.train.losses import rod_excess
+
+    disc = torch.log(torch.tensor([[1e-4, 5e-3, 5e-3]]))  # flat, two long axes: a surface
+    rod = torch.log(torch.tensor([[1e-3, 1e-3, 6e-3]]))  # longest 6x the middle: a dash
+    log_scales = torch.cat([disc, rod]).requires_grad_(True)
+    excess = rod_excess(log_scales)
+    assert float(excess.detach()) == pytest.approx((math.log(6) - math.log(3)) / 2, rel=1e-5)
+    excess.backward()
+    assert log_scales.grad[0].abs().sum() == 0
+    # the longest axis shrinks and the middle one grows (ties share the middle's pull)
+    assert log_scales.grad[1, 2] == pytest.approx(0.5)
+    assert float(log_scales.grad[1, :2].sum()) == pytest.approx(-0.5)
+
+
 def test_the_huber_threshold_must_be_positive():
     from archhead_addon.io.errors import InputError
     from archhead_addon.train.config import TrainConfig

@@ -22,6 +22,9 @@ LEGACY = {"sh_degree": 3, "colour_space": "display"}
 COLOUR_SPACES = ("linear", "display")  # splat/colour_space.py
 JAW_DIM, EYES_DIM = 3, 6
 QUAT_EPS = 1e-8  # below this norm a raw quaternion is replaced by the identity
+# A rod: a Gaussian whose longest axis is more than this many times its middle one, drawn as a
+# dash (the hair's dark dashes; `loss.rod` pulls on them, `evaluate` counts them)
+ROD_RATIO = 3.0
 
 
 @dataclass(frozen=True)

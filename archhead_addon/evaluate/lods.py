@@ -34,6 +34,7 @@ class LodResult:
     st_lpips_head: float = float("nan")
     psnr_face: float = float("nan")  # over the face (flame.regions): where hair rarely falls
     needles: float = 0.0  # the share of Gaussians with an axis ratio above 10 (render.py)
+    rods: float = 0.0  # the share with a longest axis over 3 times the middle one (render.py)
 
     @property
     def render_ms(self) -> float:
@@ -58,7 +59,7 @@ def evaluate_lods(
         for lod in lods:
             first = frames[0]
             runtime.decode(lod, precision=precision, **driving_codes(first["codes"]))
-            scores, decode, splat, needles = [], [], [], []
+            scores, decode, splat, needles, rods = [], [], [], [], []
             for i, item in enumerate(frames):
                 out = render_frame(
                     runtime, lod, item["codes"], item["K"], item["w2c"], size, background, precision
@@ -71,6 +72,7 @@ def evaluate_lods(
                 decode.append(out.decode_ms)
                 splat.append(out.splat_ms)
                 needles.append(out.needles)
+                rods.append(out.rods)
             mean = [float(x) for x in np.nanmean(np.array(scores, np.float64), axis=0)]
             results.append(
                 LodResult(
@@ -83,6 +85,7 @@ def evaluate_lods(
                     statistics.median(splat),
                     *mean[4:],
                     needles=float(np.mean(needles)),
+                    rods=float(np.mean(rods)),
                 )
             )
     return results

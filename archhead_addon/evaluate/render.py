@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..avatar.config import ROD_RATIO
 from ..avatar.culling import ViewFrustum
 from ..avatar.runtime import AvatarRuntime
 from ..camera import affine_inverse
@@ -34,6 +35,7 @@ class RenderedFrame:
     decode_ms: float
     splat_ms: float  # SH to RGB and the splat kernel
     needles: float  # the share of Gaussians with an axis ratio above NEEDLE_RATIO
+    rods: float  # the share whose longest axis is more than ROD_RATIO times the middle one
 
     @property
     def total_ms(self) -> float:
@@ -73,7 +75,9 @@ def render_frame(
     raster = kernel.render(g.means, g.quats, g.log_scales, g.opacity_logits, colours, settings)
     rgb = linear_to_srgb(raster.rgb) if space == "linear" else raster.rgb
     splat_ms = 1e3 * watch.seconds
-    return RenderedFrame(rgb.astype(np.float32), len(g), decode_ms, splat_ms, needle_share(g))
+    return RenderedFrame(
+        rgb.astype(np.float32), len(g), decode_ms, splat_ms, needle_share(g), rod_share(g)
+    )
 
 
 def needle_share(g) -> float:
@@ -81,3 +85,10 @@ def needle_share(g) -> float:
     streaks an artist sees as needles."""
     spread = np.ptp(np.asarray(g.log_scales, np.float64), axis=1)
     return float((spread > np.log(NEEDLE_RATIO)).mean()) if len(spread) else 0.0
+
+
+def rod_share(g) -> float:
+    """The share of the decoded Gaussians whose longest axis is more than ROD_RATIO times
+    the middle one: rods, drawn as dashes (a thin disc, long in two axes, is not one)."""
+    axes = np.sort(np.asarray(g.log_scales, np.float64), axis=1)
+    return float((axes[:, 2] - axes[:, 1] > np.log(ROD_RATIO)).mean()) if len(axes) else 0.0

@@ -26,6 +26,7 @@ COLUMNS = (
     "st_lpips_head",
     "psnr_face",
     "needles",
+    "rods",
 )
 # Paper section 4.4: LOD 1 against LOD 0 (Gaussians, PSNR, SSIM, FPS) on its GPUs.
 PAPER_RATIOS = {
@@ -54,6 +55,7 @@ def _row(r: LodResult) -> dict:
         "st_lpips_head": r.st_lpips_head,
         "psnr_face": r.psnr_face,
         "needles": r.needles,
+        "rods": r.rods,
     }
 
 
@@ -69,16 +71,16 @@ def to_csv(results: list[LodResult]) -> str:
 def lod_table(results: list[LodResult]) -> str:
     lines = [
         "| LOD | precision | S | Gaussians | L1 | PSNR (dB) | SSIM | ST-LPIPS | head PSNR "
-        "| head SSIM | head ST-LPIPS | face PSNR | axis ratio > 10 | decode ms | splat ms "
-        "| total ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| head SSIM | head ST-LPIPS | face PSNR | axis ratio > 10 | rods | decode ms "
+        "| splat ms | total ms |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         lines.append(
             f"| {r.lod:.2f} | {r.precision} | {r.resolution} | {r.gaussians:,} | "
             f"{r.l1:.4f} | {r.psnr:.2f} | {r.ssim:.4f} | {r.st_lpips:.4f} | "
             f"{r.psnr_head:.2f} | {r.ssim_head:.4f} | {r.st_lpips_head:.4f} | "
-            f"{r.psnr_face:.2f} | {100 * r.needles:.1f} % | "
+            f"{r.psnr_face:.2f} | {100 * r.needles:.1f} % | {100 * r.rods:.1f} % | "
             f"{r.decode_ms:.1f} | {r.splat_ms:.1f} | {r.render_ms:.1f} |"
         )
     return "\n".join(lines)

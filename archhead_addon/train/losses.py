@@ -23,6 +23,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from ..avatar.config import ROD_RATIO
 from ..avatar.gaussians import Gaussians
 from .config import LossWeights
 
@@ -56,6 +57,15 @@ def anisotropy_excess(log_scales: torch.Tensor) -> torch.Tensor:
     """L_a: the mean of max(0, ln(max axis / min axis) - ln ANISOTROPY_RATIO) over (N,3)."""
     spread = log_scales.max(dim=1).values - log_scales.min(dim=1).values
     return F.relu(spread - math.log(ANISOTROPY_RATIO)).mean()
+
+
+def rod_excess(log_scales: torch.Tensor) -> torch.Tensor:
+    """L_r: the mean of max(0, ln(longest axis / middle axis) - ln ROD_RATIO) over (N,3).
+    A rod (one long axis, two short) draws a dash; a flat disc (two long axes), which
+    `anisotropy_excess` pulls on too, is what a surface wants and costs nothing here."""
+    longest = log_scales.max(dim=1).values
+    middle = log_scales.sum(dim=1) - longest - log_scales.min(dim=1).values
+    return F.relu(longest - middle - math.log(ROD_RATIO)).mean()
 
 
 def scale_weight(weights: LossWeights, lod: float) -> float:
@@ -106,6 +116,9 @@ class TrainingLoss:
         if w.anisotropy > 0:
             terms["anisotropy"] = anisotropy_excess(gaussians.log_scales)
             total = total + w.anisotropy * terms["anisotropy"]
+        if w.rod > 0:
+            terms["rod"] = rod_excess(gaussians.log_scales)
+            total = total + w.rod * terms["rod"]
         if self.perceptual is not None and lpips_weight > 0:
             if reference is None:
                 reference = self.perceptual.reference(_nchw(target))
