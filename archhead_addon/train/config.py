@@ -56,8 +56,8 @@ class LossWeights:
     # Not the paper's: a penalty on axis ratios above ANISOTROPY_RATIO (losses.py), against
     # the needles that thin hair and edges grow on real faces; 0 leaves it out.
     anisotropy: float = 0.0
-    # Not the paper's: a penalty on a longest axis more than ROD_RATIO times the middle one
-    # (losses.py), against the short dark dashes in long hair; 0 leaves it out.
+    # Not the paper's: a penalty on a longest axis more than ROD_RATIO (avatar/config.py)
+    # times the middle one (losses.py), against the dark dashes in long hair; 0: none.
     rod: float = 0.0
 
 

@@ -1,6 +1,6 @@
 """The training loss of the paper (eq. 6-7):
 
-    L     = L_rgb + λ_lpips L_lpips + λ_μ L_μ + λ_s (1 - 0.5 l) L_s [+ λ_a L_a]
+    L     = L_rgb + λ_lpips L_lpips + λ_μ L_μ + λ_s (1 - 0.5 l) L_s [+ λ_a L_a + λ_r L_r]
     L_rgb = Huber(I, Î) + λ_parts Huber(I·B, Î·B)
 
 I the ground-truth image, Î the render, B the eye/mouth parts mask, l the level of detail.
@@ -9,7 +9,9 @@ scales (metres, activated: exp of the log scales); denser levels (small l) get t
 scale weight. L_lpips is ST-LPIPS (perceptual.py), the shift-tolerant LPIPS. L_a, not in
 the paper, is the mean over Gaussians of max(0, ln(longest / shortest axis) - ln 10): zero
 for every Gaussian within the axis ratio the evaluation counts as a needle
-(evaluate.render.NEEDLE_RATIO), a pull on the log scales of the others only.
+(evaluate.render.NEEDLE_RATIO), a pull on the log scales of the others only. L_r, not in
+the paper either, is the mean of max(0, ln(longest / middle axis) - ln 3): it pulls on rods
+(dashes) and leaves flat discs alone, which L_a pulls on too (docs/quality.md, "Rods").
 
 Huber's threshold is not in the paper. On images in [0, 1] the common default of 1 makes it
 plain half-MSE; 0.1 keeps it quadratic near convergence and linear (L1-like, robust) for the
