@@ -196,12 +196,8 @@ class SharedDecoder:
         view: ViewFrustum | None = None,
         sh_degree: int | None = None,
     ) -> tuple[str, SplatFrame]:
-        """(key, Gaussians) from memory, the disk cache or a fresh decode (`resolve_frames`
-        of this one request)."""
-        found = resolve_frames([FrameRequest(self, codes, lod, view, sh_degree)])[0]
-        if isinstance(found, Exception):
-            raise found
-        return found
+        """(key, Gaussians) from memory, the disk cache or a fresh decode."""
+        return resolve_frame(FrameRequest(self, codes, lod, view, sh_degree))
 
     def lookup(self, request: FrameRequest) -> tuple[str, SplatFrame | None]:
         """(key, Gaussians) of a request from memory or the disk cache, None where it needs
@@ -255,6 +251,14 @@ class FrameRequest:
 
     def texels(self) -> int:
         return self.decoder.texels(self.decoder.runtime.resolution(self.lod))
+
+
+def resolve_frame(request: FrameRequest) -> tuple[str, SplatFrame]:
+    """`resolve_frames` of one request; a failed decode raises."""
+    found = resolve_frames([request])[0]
+    if isinstance(found, Exception):
+        raise found
+    return found
 
 
 def resolve_frames(requests: list[FrameRequest]) -> list:

@@ -23,7 +23,14 @@ from archhead_addon.io.errors import InputError
 from archhead_addon.splat.frame import SplatFrame
 
 from .avatar_props import is_avatar
-from .avatar_session import FrameRequest, forget_shown, prune_sessions, resolve_frames, session
+from .avatar_session import (
+    FrameRequest,
+    forget_shown,
+    prune_sessions,
+    resolve_frame,
+    resolve_frames,
+    session,
+)
 from .crowd import scene_budget, scene_lods
 from .lod_driver import follow_scene_camera
 from .point_instances import write_points
@@ -75,8 +82,7 @@ def frame_request(
 
 def frame_to_show(obj, scene, depsgraph, culled=False, full_colour=False, lod=None):
     """(cache key, Gaussians) of `frame_request`, from the caches or decoded."""
-    request = frame_request(obj, scene, depsgraph, culled, full_colour, lod=lod)
-    return request.decoder.frame(request.codes, request.lod, request.view, request.sh_degree)
+    return resolve_frame(frame_request(obj, scene, depsgraph, culled, full_colour, lod=lod))
 
 
 def culls(obj, depsgraph) -> bool:
@@ -90,10 +96,7 @@ def refresh_avatar(obj, scene, depsgraph, lod: float | None = None) -> bool:
     if they were rewritten."""
     avatar = session(obj)
     request = frame_request(obj, scene, depsgraph, culls(obj, depsgraph), avatar=avatar, lod=lod)
-    found = resolve_frames([request])[0]
-    if isinstance(found, Exception):
-        raise found
-    return _show(obj, avatar, found, scene, depsgraph)
+    return _show(obj, avatar, resolve_frame(request), scene, depsgraph)
 
 
 def _show(obj, avatar, found: tuple[str, SplatFrame], scene, depsgraph) -> bool:
