@@ -48,22 +48,3 @@ def splat_cpu(frame: SplatFrame, settings: kernel.RasterSettings):
     """Differentiable CPU render of a frame of tensors (RGB in sh): (rgb (H,W,3), alpha
     (H,W), depth_acc (H,W))."""
     return SplatCPU.apply(settings, *(getattr(frame, name) for name in FIELDS))
-
-
-class FloorAtZero(torch.autograd.Function):
-    """max(x, 0), whose gradient also reaches an x below 0 when it points upwards.
-
-    A plain clamp gives a clamped channel no gradient at all, so a colour that one step
-    pushes below 0 stays black for good: a third of a long-haired avatar's Gaussians ended
-    so, drawn as dark dots in the hair (docs/quality.md, "Dead colours"). The forward value
-    is the clamp's, so the runtime's numpy clamp still shows what was trained."""
-
-    @staticmethod
-    def forward(ctx, x):
-        ctx.save_for_backward(x)
-        return x.clamp_min(0.0)
-
-    @staticmethod
-    def backward(ctx, grad):
-        (x,) = ctx.saved_tensors
-        return torch.where((x > 0) | (grad < 0), grad, torch.zeros_like(grad))

@@ -75,12 +75,9 @@ def sh_to_rgb_numpy(degree: int, dirs: np.ndarray, coeffs: np.ndarray) -> np.nda
 
 
 def sh_to_rgb_torch(degree: int, dirs, coeffs):
-    """Torch version of sh_to_rgb_numpy (differentiable in dirs and coeffs; the floor at 0
-    passes a gradient that would lift a clamped channel: `autograd.FloorAtZero`)."""
-    from .autograd import FloorAtZero  # here: Blender imports this module without torch
-
+    """Torch version of sh_to_rgb_numpy (differentiable in dirs and coeffs)."""
     _check(degree, coeffs.shape)
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(_DIR_EPS)
     basis = sh_basis(degree, dirs[..., 0], dirs[..., 1], dirs[..., 2])
     rgb = sum(b[..., None] * coeffs[..., k, :] for k, b in enumerate(basis))
-    return FloorAtZero.apply(rgb + 0.5)
+    return (rgb + 0.5).clamp_min(0.0)
