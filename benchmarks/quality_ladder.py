@@ -90,6 +90,11 @@ def _evaluate(args, run: Path, split: str, frames: int | None, scored: Path) -> 
         return list(csv.DictReader(f))
 
 
+def _share(row: dict, key: str) -> str:
+    """A share column as a percentage ("-" where an evaluation from before it lacks it)."""
+    return f"{100 * float(row[key]):.1f} %" if row.get(key) else "-"
+
+
 def ladder(args) -> str:
     runs = {1: args.out / "run_1", 10: args.out / "run_10", None: args.out / "run_all"}
     for frames, run in runs.items():
@@ -100,12 +105,12 @@ def ladder(args) -> str:
     lines = [
         f"| rung | frames scored | PSNR {head} | SSIM LOD 0 | ST-LPIPS LOD 0 | head PSNR {head} "
         "| head SSIM LOD 0 | head ST-LPIPS LOD 0 | face PSNR LOD 0 / 1 "
-        "| axis ratio > 10, LOD 0 / 1 |",
-        "|---" * (8 + 2 * len(lods)) + "|",
+        "| axis ratio > 10, LOD 0 / 1 | rods, LOD 0 / 1 | black, LOD 0 / 1 |",
+        "|---" * (10 + 2 * len(lods)) + "|",
     ]
     for name, what, frames, split, scored in RUNGS:
         if not _finished(runs[frames]):
-            lines.append(f"| {name}: {what} | {split} | not run |" + " |" * (5 + 2 * len(lods)))
+            lines.append(f"| {name}: {what} | {split} | not run |" + " |" * (7 + 2 * len(lods)))
             continue
         rows = _evaluate(args, runs[frames], split, scored or frames, args.out / f"eval_{name}")
         by_lod = {float(r["lod"]): r for r in rows}
@@ -117,7 +122,9 @@ def ladder(args) -> str:
             + " | ".join(f"{float(by_lod[lod]['psnr_head']):.2f}" for lod in lods)
             + f" | {float(first['ssim_head']):.3f} | {float(first['st_lpips_head']):.3f} | "
             f"{float(first['psnr_face']):.2f} / {float(last['psnr_face']):.2f} | "
-            f"{100 * float(first['needles']):.1f} % / {100 * float(last['needles']):.1f} % |"
+            f"{100 * float(first['needles']):.1f} % / {100 * float(last['needles']):.1f} % | "
+            f"{_share(first, 'rods')} / {_share(last, 'rods')} | "
+            f"{_share(first, 'black')} / {_share(last, 'black')} |"
         )
     table = "\n".join(lines)
     (args.out / "ladder.md").write_text(

@@ -280,3 +280,13 @@ def test_rods_and_needles_are_counted_apart():
     assert needle_share(g) == pytest.approx(1 / 3) and rod_share(g) == pytest.approx(1 / 3)
     assert rod_share(SimpleNamespace(log_scales=np.log(np.array([disc, sphere])))) == 0
     assert rod_share(SimpleNamespace(log_scales=np.zeros((0, 3)))) == 0
+
+
+def test_black_counts_colours_floored_in_every_channel():
+    """A Gaussian is black when its floored colour is 0 in all three channels; one dark
+    channel is a colour, not black."""
+    from archhead_addon.evaluate.render import black_share
+
+    colours = np.array([[0, 0, 0], [0, 0.2, 0], [0.5, 0.5, 0.5], [0, 0, 0]], np.float32)
+    assert black_share(colours) == pytest.approx(0.5)
+    assert black_share(np.zeros((0, 3), np.float32)) == 0

@@ -35,6 +35,7 @@ class LodResult:
     psnr_face: float = float("nan")  # over the face (flame.regions): where hair rarely falls
     needles: float = 0.0  # the share of Gaussians with an axis ratio above 10 (render.py)
     rods: float = 0.0  # the share with a longest axis over 3 times the middle one (render.py)
+    black: float = 0.0  # the share drawn black (render.black_share)
 
     @property
     def render_ms(self) -> float:
@@ -59,7 +60,7 @@ def evaluate_lods(
         for lod in lods:
             first = frames[0]
             runtime.decode(lod, precision=precision, **driving_codes(first["codes"]))
-            scores, decode, splat, needles, rods = [], [], [], [], []
+            scores, decode, splat, needles, rods, black = [], [], [], [], [], []
             for i, item in enumerate(frames):
                 out = render_frame(
                     runtime, lod, item["codes"], item["K"], item["w2c"], size, background, precision
@@ -73,6 +74,7 @@ def evaluate_lods(
                 splat.append(out.splat_ms)
                 needles.append(out.needles)
                 rods.append(out.rods)
+                black.append(out.black)
             mean = [float(x) for x in np.nanmean(np.array(scores, np.float64), axis=0)]
             results.append(
                 LodResult(
@@ -86,6 +88,7 @@ def evaluate_lods(
                     *mean[4:],
                     needles=float(np.mean(needles)),
                     rods=float(np.mean(rods)),
+                    black=float(np.mean(black)),
                 )
             )
     return results

@@ -36,6 +36,7 @@ class RenderedFrame:
     splat_ms: float  # SH to RGB and the splat kernel
     needles: float  # the share of Gaussians with an axis ratio above NEEDLE_RATIO
     rods: float  # the share whose longest axis is more than ROD_RATIO times the middle one
+    black: float  # the share drawn black: colour 0 in every channel (`black_share`)
 
     @property
     def total_ms(self) -> float:
@@ -76,7 +77,13 @@ def render_frame(
     rgb = linear_to_srgb(raster.rgb) if space == "linear" else raster.rgb
     splat_ms = 1e3 * watch.seconds
     return RenderedFrame(
-        rgb.astype(np.float32), len(g), decode_ms, splat_ms, needle_share(g), rod_share(g)
+        rgb.astype(np.float32),
+        len(g),
+        decode_ms,
+        splat_ms,
+        needle_share(g),
+        rod_share(g),
+        black_share(colours),
     )
 
 
@@ -92,3 +99,10 @@ def rod_share(g) -> float:
     the middle one: rods, drawn as dashes (a thin disc, long in two axes, is not one)."""
     axes = np.sort(np.asarray(g.log_scales, np.float64), axis=1)
     return float((axes[:, 2] - axes[:, 1] > np.log(ROD_RATIO)).mean()) if len(axes) else 0.0
+
+
+def black_share(colours: np.ndarray) -> float:
+    """The share of Gaussians whose colour (N,3), floored at 0 as 3DGS floors it, is 0 in
+    every channel: a pupil's, or a colour that training drove below the floor, where the
+    floor leaves it no gradient to come back by (docs/quality.md, "Black Gaussians")."""
+    return float((colours.max(axis=1) <= 0).mean()) if len(colours) else 0.0

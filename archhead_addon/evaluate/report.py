@@ -27,6 +27,7 @@ COLUMNS = (
     "psnr_face",
     "needles",
     "rods",
+    "black",
 )
 # Paper section 4.4: LOD 1 against LOD 0 (Gaussians, PSNR, SSIM, FPS) on its GPUs.
 PAPER_RATIOS = {
@@ -56,6 +57,7 @@ def _row(r: LodResult) -> dict:
         "psnr_face": r.psnr_face,
         "needles": r.needles,
         "rods": r.rods,
+        "black": r.black,
     }
 
 
@@ -71,9 +73,9 @@ def to_csv(results: list[LodResult]) -> str:
 def lod_table(results: list[LodResult]) -> str:
     lines = [
         "| LOD | precision | S | Gaussians | L1 | PSNR (dB) | SSIM | ST-LPIPS | head PSNR "
-        "| head SSIM | head ST-LPIPS | face PSNR | axis ratio > 10 | rods | decode ms "
+        "| head SSIM | head ST-LPIPS | face PSNR | axis ratio > 10 | rods | black | decode ms "
         "| splat ms | total ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---" * 18 + "|",
     ]
     for r in results:
         lines.append(
@@ -81,6 +83,7 @@ def lod_table(results: list[LodResult]) -> str:
             f"{r.l1:.4f} | {r.psnr:.2f} | {r.ssim:.4f} | {r.st_lpips:.4f} | "
             f"{r.psnr_head:.2f} | {r.ssim_head:.4f} | {r.st_lpips_head:.4f} | "
             f"{r.psnr_face:.2f} | {100 * r.needles:.1f} % | {100 * r.rods:.1f} % | "
+            f"{100 * r.black:.1f} % | "
             f"{r.decode_ms:.1f} | {r.splat_ms:.1f} | {r.render_ms:.1f} |"
         )
     return "\n".join(lines)
