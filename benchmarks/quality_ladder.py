@@ -122,7 +122,7 @@ def ladder(args) -> str:
             + " | ".join(f"{float(by_lod[lod]['psnr_head']):.2f}" for lod in lods)
             + f" | {float(first['ssim_head']):.3f} | {float(first['st_lpips_head']):.3f} | "
             f"{float(first['psnr_face']):.2f} / {float(last['psnr_face']):.2f} | "
-            f"{100 * float(first['needles']):.1f} % / {100 * float(last['needles']):.1f} % | "
+            f"{_share(first, 'needles')} / {_share(last, 'needles')} | "
             f"{_share(first, 'rods')} / {_share(last, 'rods')} | "
             f"{_share(first, 'black')} / {_share(last, 'black')} |"
         )
