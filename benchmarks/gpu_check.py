@@ -1,27 +1,32 @@
 """The GPU path checked and timed on a CUDA machine, in one command (docs/gpu.md):
 
     python benchmarks/gpu_check.py --data DIR [--out gpu_check.md] [--minutes 0]
-        [--presets cpu,gpu_paper] [--steps 100]
+        [--presets cpu,gpu_paper] [--steps 100] [--score RUN]
 
 1. builds gsplat's CUDA kernels if needed (its first use compiles them) and times that;
-2. runs the GPU tests (`pytest -m gpu`);
+2. runs the GPU tests (`tests/test_splat_gpu.py`; the rest of the suite needs Blender's bpy);
 3. compares gsplat with the CPU kernel on face scenes, forward (images) and backward (the
    gradient of a fixed random image loss for every parameter: cosine and relative norm);
-4. times stage-1 and stage-2 training steps of each preset on DIR (a tracked folder), from
+4. with `--score RUN`, scores a finished run (a CPU-trained avatar) as the quality ladder's
+   rungs c and d on this device, the reference beside the GPU run's rows;
+5. times stage-1 and stage-2 training steps of each preset on DIR (a tracked folder), from
    the training command's own `--progress-json` (seconds per step over each stage's
-   `--steps` steps, the first fifth dropped as warm-up);
-5. profiles one stage-2 step of the last preset with torch.profiler: the time the host
+   `--steps` steps, the first fifth dropped as warm-up) and the whole preset from them;
+6. profiles one stage-2 step of the last preset with torch.profiler: the time the host
    spends against the time the GPU is busy;
-6. with `--minutes M`, trains `gpu_paper` shortened to about M minutes and evaluates it on
-   DIR's held-out frames.
-Writes one Markdown file (--out) naming the card, and prints it. Refuses clearly without
-CUDA. A GPU-less machine has nothing here to measure: the CPU figures are in docs/results.md.
+7. with `--minutes M`, trains `gpu_paper` shortened to about M minutes and scores it as the
+   quality ladder's rungs c (training frames) and d (held-out frames), head and all.
+Writes one Markdown file (--out) naming the card, line by line as results come, and prints
+them; runs and scores go to the folder beside it (--out without its suffix). Refuses clearly
+without CUDA. A GPU-less machine has nothing here to measure: the CPU figures are in
+docs/results.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -29,6 +34,7 @@ import time
 from pathlib import Path
 
 FACE_SCENES = ((2_000, 128), (20_000, 256), (60_000, 512))  # Gaussians, image side
+GPU_TESTS = "tests/test_splat_gpu.py"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -38,6 +44,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--presets", default="cpu,gpu_paper", help="presets to time (comma list)")
     p.add_argument("--steps", type=int, default=100, help="steps timed per stage and preset")
     p.add_argument("--minutes", type=float, default=0.0, help="a shortened gpu_paper run")
+    p.add_argument(
+        "--score", type=Path, help="a finished training run to score here beside the GPU's"
+    )
     return p.parse_args(argv)
 
 
@@ -169,43 +178,49 @@ def profile_stage2(data: Path, preset: str, device: str = "cuda") -> dict:
     }
 
 
-def short_run(data: Path, minutes: float, out: Path) -> dict:
-    """gpu_paper shortened to about `minutes` (from its measured step times), evaluated."""
+def short_run(data: Path, minutes: float, out: Path, rates: dict | None = None) -> dict:
+    """gpu_paper shortened to about `minutes` (from its measured step times), scored as the
+    quality ladder's rungs c and d (benchmarks/quality_ladder.py, its table)."""
     from archhead_addon.train.config import TrainConfig
 
     config = json.loads(TrainConfig.load("gpu_paper").to_json())
-    rates = time_preset(data, "gpu_paper", 20)
+    rates = rates or time_preset(data, "gpu_paper", 20)
     per_pair = rates["stage1_ms"] + 2 * rates["stage2_ms"]  # the preset's 1:2 stage ratio
     n = max(int(minutes * 60e3 / per_pair), 10)
     config.update(stage1_steps=n, stage2_steps=2 * n, holdout="interleaved")
+    out.mkdir(parents=True, exist_ok=True)
     path = out / "gpu_paper_short.json"
     path.write_text(json.dumps(config))
-    run, scores = out / "run", out / "eval"
-    subprocess.run(_train_command(data, run, path), check=True)
+    start = time.monotonic()
+    subprocess.run(_train_command(data, out / "run_all", path), check=True)
+    train_s = time.monotonic() - start
+    ladder = Path(__file__).with_name("quality_ladder.py")
     subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "archhead_addon.evaluate",
-            "--avatar",
-            str(run / "avatar.npz"),
-            "--data",
-            str(data),
-            "--out",
-            str(scores),
-            "--lods",
-            "0,0.5,1",
-            "--precisions",
-            "fp32",
-        ],
+        [sys.executable, str(ladder), "--data", str(data), "--out", str(out), "--score-only"],
         check=True,
     )
-    return {"steps": 3 * n, "metrics": (scores / "metrics.md").read_text()}
+    return {"steps": 3 * n, "train_s": train_s, "ladder": (out / "ladder.md").read_text()}
+
+
+def score_run(data: Path, run: Path, out: Path) -> str:
+    """A finished run (its avatar.npz, checkpoint.json and config.json; a CPU-trained one)
+    scored as the quality ladder's rungs c and d on this device, beside the GPU run's rows."""
+    (out / "run_all").mkdir(parents=True, exist_ok=True)
+    for name in ("avatar.npz", "checkpoint.json", "config.json"):
+        shutil.copyfile(run / name, out / "run_all" / name)
+    ladder = Path(__file__).with_name("quality_ladder.py")
+    subprocess.run(
+        [sys.executable, str(ladder), "--data", str(data), "--out", str(out), "--score-only"],
+        check=True,
+    )
+    return (out / "ladder.md").read_text()
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
     import torch
+
+    from archhead_addon.train.config import TrainConfig
 
     if not torch.cuda.is_available():
         print(
@@ -214,42 +229,58 @@ def main(argv=None) -> int:
             file=sys.stderr,
         )
         return 2
+    lines = []
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+
+    def emit(*new: str) -> None:
+        """Print and keep each result as it comes: a run cut short keeps what it measured."""
+        lines.extend(new)
+        print("\n".join(new), flush=True)
+        args.out.write_text("\n".join(lines) + "\n")
+
     card = torch.cuda.get_device_name(0)
-    lines = [f"# GPU check on {card}", "", f"torch {torch.__version__}, CUDA {torch.version.cuda}"]
-    lines += ["", f"gsplat first rasterization (build if needed): {build_gsplat():.1f} s"]
+    emit(f"# GPU check on {card}", "", f"torch {torch.__version__}, CUDA {torch.version.cuda}")
+    emit("", f"gsplat first rasterization (build if needed): {build_gsplat():.1f} s")
     tests = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-m", "gpu", "tests"], capture_output=True, text=True
+        [sys.executable, "-m", "pytest", "-q", "-m", "gpu", GPU_TESTS],
+        capture_output=True,
+        text=True,
     )
-    lines += [f"GPU tests: {(tests.stdout.strip().splitlines() or ['no output'])[-1]}", ""]
-    lines += [
-        "| scene | image max abs diff | gradient cosine, lowest parameter |",
-        "|---|---:|---:|",
-    ]
+    emit(f"GPU tests: {(tests.stdout.strip().splitlines() or ['no output'])[-1]}", "")
+    emit("| scene | image max abs diff | gradient cosine, lowest parameter |", "|---|---:|---:|")
     for n, side in FACE_SCENES:
         c = compare_backends(n, side)
-        lines.append(f"| {c['scene']} | {c['image_max_abs']:.2e} | {c['grad_cosine_min']:.5f} |")
-    if args.data is not None:
-        lines += ["", "| preset | stage 1 ms/step | stage 2 ms/step |", "|---|---:|---:|"]
-        presets = args.presets.split(",")
-        for preset in presets:
-            t = time_preset(args.data, preset, args.steps)
-            lines.append(
-                f"| {preset} | {t.get('stage1_ms', 0):.1f} | {t.get('stage2_ms', 0):.1f} |"
-            )
-        p = profile_stage2(args.data, presets[-1])
-        lines += [
+        emit(f"| {c['scene']} | {c['image_max_abs']:.2e} | {c['grad_cosine_min']:.5f} |")
+    if args.data is None:
+        return 0
+    folder = args.out.with_suffix("")
+    if args.score is not None:
+        ladder = score_run(args.data, args.score, folder / "scored")
+        emit("", f"{args.score} scored here:", "", ladder)
+    emit(
+        "", "| preset | stage 1 ms/step | stage 2 ms/step | whole preset |", "|---|---:|---:|---:|"
+    )
+    presets, timed = args.presets.split(","), {}
+    for preset in presets:
+        t = timed[preset] = time_preset(args.data, preset, args.steps)
+        s1, s2 = t.get("stage1_ms", 0), t.get("stage2_ms", 0)
+        steps = TrainConfig.load(preset)
+        whole = (steps.stage1_steps * s1 + steps.stage2_steps * s2) / 60e3
+        emit(f"| {preset} | {s1:.1f} | {s2:.1f} | {whole:.1f} min |")
+    p = profile_stage2(args.data, presets[-1])
+    emit(
+        "",
+        f"One {presets[-1]} stage-2 step: {p['step_ms']:.1f} ms, "
+        f"GPU busy {p['gpu_busy_ms']:.1f} ms (host share {100 * p['host_share']:.0f} %)",
+    )
+    if args.minutes > 0:
+        r = short_run(args.data, args.minutes, folder / "gpu_paper_short", timed.get("gpu_paper"))
+        emit(
             "",
-            f"One {presets[-1]} stage-2 step: {p['step_ms']:.1f} ms, "
-            f"GPU busy {p['gpu_busy_ms']:.1f} ms (host share {100 * p['host_share']:.0f} %)",
-        ]
-        if args.minutes > 0:
-            folder = args.out.with_suffix("")
-            folder.mkdir(parents=True, exist_ok=True)
-            r = short_run(args.data, args.minutes, folder)
-            lines += ["", f"gpu_paper shortened to {r['steps']} steps:", "", r["metrics"]]
-    text = "\n".join(lines) + "\n"
-    args.out.write_text(text)
-    print(text)
+            f"gpu_paper shortened to {r['steps']:,} steps ({r['train_s'] / 60:.1f} min):",
+            "",
+            r["ladder"],
+        )
     return 0
 
 
