@@ -194,12 +194,7 @@ def short_run(data: Path, minutes: float, out: Path, rates: dict | None = None) 
     start = time.monotonic()
     subprocess.run(_train_command(data, out / "run_all", path), check=True)
     train_s = time.monotonic() - start
-    ladder = Path(__file__).with_name("quality_ladder.py")
-    subprocess.run(
-        [sys.executable, str(ladder), "--data", str(data), "--out", str(out), "--score-only"],
-        check=True,
-    )
-    return {"steps": 3 * n, "train_s": train_s, "ladder": (out / "ladder.md").read_text()}
+    return {"steps": 3 * n, "train_s": train_s, "ladder": _ladder_rows(data, out)}
 
 
 def score_run(data: Path, run: Path, out: Path) -> str:
@@ -208,6 +203,11 @@ def score_run(data: Path, run: Path, out: Path) -> str:
     (out / "run_all").mkdir(parents=True, exist_ok=True)
     for name in ("avatar.npz", "checkpoint.json", "config.json"):
         shutil.copyfile(run / name, out / "run_all" / name)
+    return _ladder_rows(data, out)
+
+
+def _ladder_rows(data: Path, out: Path) -> str:
+    """The ladder table of the run in out/run_all (benchmarks/quality_ladder.py)."""
     ladder = Path(__file__).with_name("quality_ladder.py")
     subprocess.run(
         [sys.executable, str(ladder), "--data", str(data), "--out", str(out), "--score-only"],
@@ -264,8 +264,8 @@ def main(argv=None) -> int:
     for preset in presets:
         t = timed[preset] = time_preset(args.data, preset, args.steps)
         s1, s2 = t.get("stage1_ms", 0), t.get("stage2_ms", 0)
-        steps = TrainConfig.load(preset)
-        whole = (steps.stage1_steps * s1 + steps.stage2_steps * s2) / 60e3
+        config = TrainConfig.load(preset)
+        whole = (config.stage1_steps * s1 + config.stage2_steps * s2) / 60e3
         emit(f"| {preset} | {s1:.1f} | {s2:.1f} | {whole:.1f} min |")
     p = profile_stage2(args.data, presets[-1])
     emit(
