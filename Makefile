@@ -6,6 +6,10 @@
 # archive the first time, to build each binary's env: scripts/blender_env.py),
 # `make ui-screenshots` copies its screenshots into docs/.
 PY ?= python3.11
+# numpy 2.5 needs Python 3.12 or later (Blender 5.x brings 3.13): the first found, else $(PY)
+# and numpy 2.4
+PY_NUMPY2 ?= $(firstword $(wildcard $(HOME)/.pyenv/versions/3.13*/bin/python3 \
+	$(HOME)/.pyenv/versions/3.12*/bin/python3 /usr/bin/python3.13 /usr/bin/python3.12) $(PY))
 VENV := .venv
 BIN := $(VENV)/bin
 
@@ -17,8 +21,8 @@ setup:
 	$(BIN)/pip install --no-deps mediapipe==0.10.21  # the last wheel with its models inside
 	$(BIN)/python -c "from archhead_addon.track.real_subject import fetch_media, fetch_webcam; fetch_media(); fetch_webcam()"
 	$(BIN)/python -m archhead_addon.splat.build
-	$(PY) -m venv .venv-numpy2  # numpy 2 alone: the Blender-side decode under Blender's numpy (tests/test_numpy2.py)
-	.venv-numpy2/bin/pip install --quiet "numpy>=2.4,<2.5"
+	$(PY_NUMPY2) -m venv .venv-numpy2  # numpy 2 alone: the Blender-side decode under Blender's numpy (tests/test_numpy2.py)
+	.venv-numpy2/bin/pip install --quiet "numpy>=2.4,<2.6"  # the newest this Python takes
 
 test:
 	$(BIN)/ruff check .

@@ -1,7 +1,8 @@
 """The Blender-side decode under numpy 2 with every warning an error: Blender brings its own
-numpy (Debian's 5.2 the system's, numpy 2), which the project's venv (numpy < 2.3) never
-meets. `make setup` makes `.venv-numpy2` (Python 3.11, numpy 2.4, nothing else); the decode
-there must give the main venv's Gaussians."""
+numpy (Debian's 5.2 the system's, numpy 2), which the project's venv (numpy 1.26) never
+meets. `make setup` makes `.venv-numpy2` (numpy alone: 2.5 on the Python 3.12 or later it
+finds, as Blender 5.x's 3.13; 2.4 on Python 3.11 where it finds none); the decode there must
+give the main venv's Gaussians."""
 
 import subprocess
 import sys
