@@ -144,3 +144,56 @@ def test_gpu_check_answers_help_and_refuses_without_cuda(repo_root):
     )
     assert done.returncode == 2 and "no CUDA device" in done.stderr
     assert not (repo_root / "unused.md").exists()
+
+
+def test_gpu_bundle_packs_the_check_for_a_gpu_machine(tiny_subject, tmp_path, repo_root):
+    """scripts/gpu_bundle.py: JPEG frames, white outside the mask and close to the PNG inside
+    it, the masks and tracking as they were, gsplat and only the AlexNet ST-LPIPS weights."""
+    import numpy as np
+    from PIL import Image
+
+    bundle = tmp_path / "bundle"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "scripts/gpu_bundle.py",
+            "--data",
+            str(tiny_subject),
+            "--out",
+            str(bundle),
+        ],
+        cwd=repo_root,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    psnr = float(re.search(r"JPEG frames ([\d.]+) dB", done.stdout).group(1))
+    assert psnr > 35
+    data = bundle / "data" / tiny_subject.name
+    pngs = sorted((tiny_subject / "frames").glob("*.png"))
+    assert [p.stem for p in pngs] == sorted(p.stem for p in (data / "frames").glob("*.jpg"))
+    mask = np.asarray(Image.open(data / "masks" / pngs[0].name))
+    assert np.array_equal(mask, np.asarray(Image.open(tiny_subject / "masks" / pngs[0].name)))
+    frame = np.asarray(Image.open(data / "frames" / f"{pngs[0].stem}.jpg")).astype(int)
+    assert frame[mask == 0].mean() > 250  # white (the subject's own frames are black there)
+    assert (data / "tracking.npz").read_bytes() == (tiny_subject / "tracking.npz").read_bytes()
+    assert (bundle / "site" / "gsplat" / "__init__.py").is_file()
+    weights = sorted(p.name for p in (bundle / "site" / "stlpips_pytorch").rglob("*.pth"))
+    assert weights == ["alex_shift_tolerant.pth"]
+    script = (bundle / "run.sh").read_text()
+    assert f"--data $B/data/{tiny_subject.name}" in script and "--score" not in script
+    refused = subprocess.run(
+        [
+            sys.executable,
+            "scripts/gpu_bundle.py",
+            "--data",
+            str(tiny_subject),
+            "--out",
+            str(bundle),
+        ],
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+    )
+    assert refused.returncode != 0 and "exists" in refused.stderr
