@@ -33,6 +33,7 @@ RUN_SH = """#!/bin/bash
 B=$(cd {bundle} && pwd)
 OUT=${{OUT:-$B/results}}; mkdir -p "$OUT"
 export PYTHONPATH=$B/site:$PWD PYTHONUNBUFFERED=1
+# gsplat's build: 9.0 is Hopper (H100, H200); set TORCH_CUDA_ARCH_LIST for another card
 export MAX_JOBS=${{MAX_JOBS:-$(nproc)}} TORCH_CUDA_ARCH_LIST=${{TORCH_CUDA_ARCH_LIST:-9.0}}
 nvidia-smi -L
 python3 benchmarks/perceptual_batch.py --device cuda --size 512 --renders 5 --rounds 10 \\
@@ -93,6 +94,9 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     if args.out.exists():
         raise SystemExit(f"gpu_bundle: {args.out} exists; remove it or name another --out")
+    for need in ("frames", "masks", "tracking.npz"):
+        if not (args.data / need).exists():
+            raise SystemExit(f"gpu_bundle: {args.data / need} is missing (a `track` folder has it)")
     pack_site(args.out / "site")
     psnr = pack_data(args.data, args.out / "data" / args.data.name, args.quality)
     score = ""
