@@ -153,15 +153,10 @@ def test_gpu_bundle_packs_the_check_for_a_gpu_machine(tiny_subject, tmp_path, re
     from PIL import Image
 
     bundle = tmp_path / "bundle"
+    command = [sys.executable, "scripts/gpu_bundle.py", "--data", str(tiny_subject)]
+    command += ["--out", str(bundle)]
     done = subprocess.run(
-        [
-            sys.executable,
-            "scripts/gpu_bundle.py",
-            "--data",
-            str(tiny_subject),
-            "--out",
-            str(bundle),
-        ],
+        command,
         cwd=repo_root,
         check=True,
         capture_output=True,
@@ -184,14 +179,7 @@ def test_gpu_bundle_packs_the_check_for_a_gpu_machine(tiny_subject, tmp_path, re
     script = (bundle / "run.sh").read_text()
     assert f"--data $B/data/{tiny_subject.name}" in script and "--score" not in script
     refused = subprocess.run(
-        [
-            sys.executable,
-            "scripts/gpu_bundle.py",
-            "--data",
-            str(tiny_subject),
-            "--out",
-            str(bundle),
-        ],
+        command,
         cwd=repo_root,
         capture_output=True,
         text=True,
