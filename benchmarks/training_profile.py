@@ -10,8 +10,9 @@ torch form of the parts that the step's optimisations replace, so the ratios say
 optimisation is worth), whose parts this file rebuilds:
 - the feature-field resample: F.interpolate per level, a channel-major blend, texels read
   by advanced indexing (`interpolated_texel_features`), not `avatar.resample`'s products;
-- ST-LPIPS: channel-major, the first convolution's input gradient by the library
-  (`LibraryLPIPS`), and the target's features computed again for every render of a step;
+- ST-LPIPS: channel-major, the first convolution and its blur unfolded with the input
+  gradient by the library (`LibraryLPIPS`), and the target's features computed again for
+  every render of a step;
 - the decoder's first layer on the concatenated texel inputs, the heads' inputs sliced
   (`concatenated_decoder_forward`).
 (Not rebuilt: the splat kernel, whose versions `splat_versions.py` compares, and FLAME's
@@ -77,17 +78,12 @@ def concatenated_decoder_forward(decoder, texel, frame):
 
 def library_lpips():
     """ST-LPIPS in its plain form: channel-major, the library's backward for every layer."""
-    import torch
-
     from archhead_addon.train import perceptual
 
     class LibraryLPIPS(perceptual.ShiftTolerantLPIPS):
         def __init__(self):
             super().__init__()
-            wide = self.trunk[0][0]
-            conv = torch.nn.Conv2d(3, 64, 11, padding=2).requires_grad_(False)
-            conv.load_state_dict(wide.state_dict())
-            self.trunk[0]._modules["0"] = conv
+            self.trunk[0] = perceptual.unfolded(self).trunk[0]
 
         def _features(self, images):
             x = ((2 * images - 1) - self.shift) / self.scale

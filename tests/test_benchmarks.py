@@ -122,6 +122,15 @@ def test_perceptual_precision_compares_float32_with_bfloat16(repo_root):
     assert re.search(r"float32 / bfloat16: [\d.]+x", out)
 
 
+def test_perceptual_fold_times_both_forms_and_finds_them_equal(repo_root):
+    out = _benchmark(repo_root, "perceptual_fold.py", "--size", 48, "--rounds", 2)
+    found = re.search(
+        r"distance ([\d.]+) against ([\d.]+), image gradient max difference (\S+)", out
+    )
+    assert re.search(r"unfolded [\d.]+ ms, folded [\d.]+ ms, [\d.]+x", out)
+    assert found and found[1] == found[2] and float(found[3]) < 1e-6
+
+
 def test_gpu_check_answers_help_and_refuses_without_cuda(repo_root):
     import torch
 

@@ -1,6 +1,5 @@
 """The paper's loss terms (eq. 6-7) on hand-made inputs, and ST-LPIPS against its package."""
 
-import copy
 import math
 
 import numpy as np
@@ -17,7 +16,7 @@ from archhead_addon.train.losses import (
     scale_norm,
     scale_weight,
 )
-from archhead_addon.train.perceptual import ShiftTolerantLPIPS
+from archhead_addon.train.perceptual import ShiftTolerantLPIPS, unfolded
 
 
 @pytest.fixture(scope="module")
@@ -130,14 +129,10 @@ def test_st_lpips_matches_the_package_implementation(st_lpips):
 
 
 def test_st_lpips_gradient_matches_the_library_convolution(st_lpips):
-    """The first convolution's row-by-row input gradient against torch's own backward; a
-    shared reference gives the distance that the pair does."""
+    """The folded first slice with its row-by-row input gradient against torch's own
+    convolution and backward; a shared reference gives the distance that the pair does."""
     a, b, _ = reference_images()
-    plain = copy.deepcopy(st_lpips)
-    wide = plain.trunk[0][0]
-    conv = torch.nn.Conv2d(3, 64, 11, padding=2).requires_grad_(False)
-    conv.load_state_dict(wide.state_dict())
-    plain.trunk[0]._modules["0"] = conv
+    plain = unfolded(st_lpips)
     grads = []
     for module in (st_lpips, plain):
         x = a.clone().requires_grad_(True)
@@ -151,6 +146,25 @@ def test_st_lpips_gradient_matches_the_library_convolution(st_lpips):
     torch.testing.assert_close(st_lpips.compare(a, reference), st_lpips(a, b))
     with pytest.raises(ValueError, match="two"):
         st_lpips.compare(a[..., :-1], reference)
+
+
+@pytest.mark.parametrize("size", [(32, 32), (34, 40), (64, 80), (256, 256), (35, 48)])
+def test_the_folded_first_slice_is_the_plain_one(st_lpips, size):
+    """Folding the blur into the first convolution changes nothing but round-off, at the
+    reflected edges too; an odd size takes the plain way."""
+    plain = unfolded(st_lpips).trunk[0]
+    x = torch.rand(2, 3, *size, generator=torch.Generator().manual_seed(sum(size)))
+    outputs, grads = [], []
+    for layer in (st_lpips.trunk[0], plain):
+        xi = x.clone().requires_grad_(True)
+        y = layer(xi)
+        (y * torch.linspace(-1, 1, y.numel()).reshape(y.shape)).sum().backward()
+        outputs.append(y)
+        grads.append(xi.grad)
+    assert outputs[0].shape == outputs[1].shape
+    assert outputs[1].abs().max() > 0.1 and grads[1].abs().max() > 0.01
+    torch.testing.assert_close(outputs[0], outputs[1], rtol=1e-5, atol=2e-5)
+    torch.testing.assert_close(grads[0], grads[1], rtol=1e-5, atol=2e-5)
 
 
 def test_st_lpips_rejects_small_or_mismatched_images(st_lpips):
