@@ -30,12 +30,11 @@ PRESET = config_data()  # read once: the properties' defaults
 OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
 DIALOG_KEY = "train_avatar"  # its remembered fields in STATE.dialog_fields
 REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "resume", "base_config")
-# Times measured on the project's 2-core machine with nothing else running (a loaded machine
-# takes longer): cpu_short renders three levels a stage-2 step (stage 1 about 68 ms a step,
-# stage 2 about 139 ms on the synthetic subject) over its 1,000 + 1,500 steps.
+# Times measured on the project's 2-core machine (a loaded machine takes longer): the real
+# subjects' runs of docs/quality.md.
 PRESET_HELP = {
-    "cpu": "The CPU avatar: 12,025 steps at 256 px (about 19 min on 2 quiet cores)",
-    "cpu_short": "The CPU avatar in 2,500 steps at 256 px (about 4.6 min on 2 quiet cores)",
+    "cpu": "The CPU avatar: 23,100 steps at 256 px (about 19.5 min on 2 cores)",
+    "cpu_short": "The CPU avatar in 4,600 steps at 256 px (about 10 min on 2 cores)",
     "gpu_paper": "The paper's settings, for a CUDA GPU (45,000 steps at 512 px); not for a CPU",
     "demo": "600 steps at 96 px (17 s on 2 cores): to check that everything runs",
 }

@@ -62,21 +62,21 @@ def test_probe_trains_its_levels_and_leaves_the_run_alone(tiny_subject, run, cap
             "--frame",
             "0",
             "--steps",
-            "40",
+            "80",
             "--every",
-            "20",
+            "40",
             "--no-regularisers",
         ]
     )
     assert rc == 0
     lines = capsys.readouterr().out.splitlines()
-    assert "levels [1.0], 40 steps, 1 training frame(s), lr x 1.0, no regularisers" in lines[0]
+    assert "levels [1.0], 80 steps, 1 training frame(s), lr x 1.0, no regularisers" in lines[0]
     rows = [json.loads(line) for line in lines[1:]]
-    assert [r["step"] for r in rows] == [0, 20, 40]
+    assert [r["step"] for r in rows] == [0, 40, 80]
     assert set(rows[0]) == {"step", "seconds", "train l=0", "train l=1", "test l=0", "test l=1"}
     # one frame at one level, nothing but the image terms: its PSNR there must climb
-    # (14.7 -> 15.2-15.6 dB: round-off in the decoder moves the end by a few tenths)
-    assert rows[-1]["train l=1"] > rows[0]["train l=1"] + 0.3
+    # (14.7 -> 16.1-16.2 dB; after 40 steps round-off alone moved it between 14.8 and 15.6)
+    assert rows[-1]["train l=1"] > rows[0]["train l=1"] + 0.8
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before
 
 
