@@ -81,10 +81,6 @@ def library_lpips():
     from archhead_addon.train import perceptual
 
     class LibraryLPIPS(perceptual.ShiftTolerantLPIPS):
-        def __init__(self):
-            super().__init__()
-            self.trunk[0] = perceptual.unfolded(self).trunk[0]
-
         def _features(self, images):
             x = ((2 * images - 1) - self.shift) / self.scale
             feats = []
@@ -93,7 +89,7 @@ def library_lpips():
                 feats.append(perceptual._unit(x))
             return feats
 
-    return LibraryLPIPS()
+    return perceptual.unfolded(LibraryLPIPS())  # its first slice unfolded too
 
 
 @contextlib.contextmanager
