@@ -255,6 +255,27 @@ def test_the_run_s_holdout_picks_the_test_frames(tiny_subject, avatar_file, tmp_
     assert np.abs(truth - everything[7]["image"]).max() > 0.05
 
 
+def test_an_avatar_without_its_config_is_told_its_holdout(
+    tiny_subject, avatar_file, tmp_path, capsys
+):
+    """Away from its run's config.json, --holdout picks the held-out frames (interleaved:
+    frame 4 of 8); without it the last 10 % are scored and stderr says so."""
+    out = tmp_path / "eval"
+    args = ["--avatar", str(avatar_file), "--data", str(tiny_subject), "--out", str(out)]
+    args += ["--resolution", str(SIZE), "--lods", "0", "--precisions", "fp32"]
+    everything = FrameDataset(tiny_subject, SIZE, load_model(), split="all")
+
+    def scored_truth():
+        return np.asarray(Image.open(out / "lods.png"))[:, :SIZE].astype(np.float32) / 255
+
+    assert main([*args, "--holdout", "interleaved"]) == 0
+    assert np.abs(scored_truth() - everything[4]["image"]).max() <= 1 / 255 + 1e-6
+    assert "scoring the last 10 %" not in capsys.readouterr().err
+    assert main(args) == 0
+    assert "--holdout interleaved" in capsys.readouterr().err
+    assert np.abs(scored_truth() - everything[7]["image"]).max() <= 1 / 255 + 1e-6
+
+
 def test_levels_are_a_list_or_a_range():
     from archhead_addon.evaluate.__main__ import parse_args
 

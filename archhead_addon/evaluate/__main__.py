@@ -4,7 +4,7 @@ frames, or every tenth with `--holdout interleaved`, as RUN/config.json says):
     python -m archhead_addon.evaluate --avatar RUN/avatar.npz --data DIR --out EVAL
         [--lods 0,0.25,0.5,0.75,1 | --lods 0:1:0.05] [--precisions fp32,fp16]
         [--resolution N] [--flame FILE] [--split test|train] [--frames N] [--mask head|person]
-        [--drive SEQ [--drive-lod L] [--drive-frames N]]
+        [--holdout last|interleaved] [--drive SEQ [--drive-lod L] [--drive-frames N]]
 
 Writes EVAL/metrics.csv and EVAL/metrics.md (L1, PSNR, SSIM, ST-LPIPS, Gaussian count and
 render milliseconds per LOD and precision, and the LOD 1 : LOD 0 ratios beside the paper's),
@@ -14,7 +14,8 @@ the levels of SHEET_LODS that were evaluated).
 --drive renders the avatar driven by another tracked sequence (any supported format) into
 EVAL/reenact/ (cross-identity reenactment). Every metric is given over the whole frame
 (the masks leave the background exact) and over the tracked head without its neck. The
-resolution defaults to the training run's (RUN/config.json); so do the masks. `--split
+resolution defaults to the training run's (RUN/config.json); so do the masks and the held-out
+frames (`--holdout`: an avatar moved away from its run's config.json says which). `--split
 train` scores the frames the avatar was fitted to (how well it fits, against how well it
 generalises); `--frames N` takes N frames evenly spread over the split. A run that refined
 its tracking (`lr.codes`) is scored with RUN/tracking_refined.npz: its training frames with
@@ -31,7 +32,7 @@ from pathlib import Path
 from ..io.cli import run_command
 from ..io.errors import InputError
 from ..threads import choose_openmp_waiting
-from ..train.config import MASKS
+from ..train.config import HOLDOUTS, MASKS
 from ..train.run_folder import RunFolder
 
 SHEET_ROWS, SHEET_LODS = 4, (0.0, 0.5, 1.0)  # EVAL/sheet.png: test frames by levels
@@ -111,6 +112,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         choices=MASKS,
         help="which masks cut the truth: head and neck, or the whole person (default: the run's)",
     )
+    p.add_argument(
+        "--holdout",
+        choices=HOLDOUTS,
+        help="which frames the run held out (default: the run's; without its config.json, the "
+        "paper's last 10 %%)",
+    )
     p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")
     p.add_argument(
         "--drive-lod", type=float, default=0.0, help="level of detail of --drive (default 0)"
@@ -140,8 +147,19 @@ def run_resolution(args) -> int:
 
 
 def run_holdout(args) -> str:
-    """Which frames the run held out for testing (the run's config; the paper's default)."""
-    return run_config(args).get("holdout", "last")
+    """Which frames the run held out: --holdout, else the run's (config.json), else the
+    paper's last 10 %, said on stderr (scored on the wrong frames, held-out figures mislead)."""
+    if args.holdout:
+        return args.holdout
+    config = run_config(args)
+    if "holdout" not in config:
+        print(
+            f"evaluate: no {RunFolder(args.avatar.parent).config.name} beside the avatar names "
+            "its held-out frames: scoring the last 10 % (pass --holdout interleaved for a run "
+            "that held out every tenth)",
+            file=sys.stderr,
+        )
+    return config.get("holdout", "last")
 
 
 def run_mask(args) -> str:
