@@ -102,6 +102,26 @@ def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_su
     assert re.search(r"stage 1: step [\d.]+x .* resample [\d.]+x", out)
 
 
+def test_step_times_stamps_a_run_and_prices_its_checkpoints(repo_root, tiny_subject, tmp_path):
+    from training_subject import write_config
+
+    config = write_config(tmp_path / "tiny.json", stage1_steps=12, stage2_steps=8)
+    log = tmp_path / "events.jsonl.gz"
+    out = _benchmark(
+        repo_root, "step_times.py", "--log", log, "--config", config, "--",
+        "--data", tiny_subject, "--out", tmp_path / "run", "--config", config,
+    )  # fmt: skip
+    assert out.startswith("20 of 20 steps on cpu (cpu)")
+    rows = {line.split("|")[1].strip(): line for line in out.splitlines() if line[:4] == "| 1 "}
+    rows |= {line.split("|")[1].strip(): line for line in out.splitlines() if line[:4] == "| 2 "}
+    # 19 gaps between 20 steps, 4 of them across the checkpoints after steps 4, 8, 12, 16
+    assert int(rows["1"].split("|")[2]) + int(rows["2"].split("|")[2]) == 15
+    assert "(the mean over 4 checkpoints)" in out
+    assert re.search(r"the whole run at these rates: [\d.]+ min \(.* in 5 checkpoints\)", out)
+    again = _benchmark(repo_root, "step_times.py", "--log", log)  # the log alone
+    assert again.splitlines()[:6] == out.splitlines()[:6]
+
+
 def test_lpips_schedule_times_every_variant_of_both_stages(repo_root, tiny_subject, tmp_path):
     from training_subject import write_config
 
