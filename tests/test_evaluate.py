@@ -5,6 +5,8 @@ import csv
 import json
 import math
 import shutil
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -274,6 +276,35 @@ def test_an_avatar_without_its_config_is_told_its_holdout(
     assert main(args) == 0
     assert "--holdout interleaved" in capsys.readouterr().err
     assert np.abs(scored_truth() - everything[7]["image"]).max() <= 1 / 255 + 1e-6
+
+
+def test_error_regions_split_the_error_over_head_mask_and_background(
+    tiny_subject, avatar_file, tmp_path, repo_root
+):
+    """benchmarks/error_regions.py: its pixel shares are the dataset's head, the rest of the
+    mask and the rest of the frame; the error shares add up to the whole."""
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(avatar_file, run / "avatar.npz")
+    (run / "config.json").write_text(json.dumps({"resolution": SIZE, "holdout": "last"}))
+    command = [sys.executable, "benchmarks/error_regions.py", "--avatar", str(run / "avatar.npz")]
+    command += ["--data", str(tiny_subject), "--split", "train"]
+    out = subprocess.run(command, cwd=repo_root, capture_output=True, text=True, check=True).stdout
+    rows = [line.split("|")[1:4] for line in out.splitlines() if line.startswith("| the ")]
+    rows += [line.split("|")[1:4] for line in out.splitlines() if line.startswith("| outside")]
+    assert [name.strip() for name, _, _ in rows] == [
+        "the head without its neck",
+        "the rest of the mask",
+        "outside the mask",
+    ]
+    error = [float(e.strip(" %")) for _, e, _ in rows]
+    pixels = [float(p.strip(" %")) for _, _, p in rows]
+    assert sum(error) == pytest.approx(100, abs=2) and min(error) >= 0
+    train = FrameDataset(tiny_subject, SIZE, load_model(), split="train")
+    head = np.mean([train[i]["head"] > 0.5 for i in range(len(train))])
+    kept = np.mean([(train[i]["mask"] > 0.5) | (train[i]["head"] > 0.5) for i in range(len(train))])
+    assert pixels[0] == pytest.approx(100 * head, abs=0.6)
+    assert pixels[0] + pixels[1] == pytest.approx(100 * kept, abs=1.1)
 
 
 def test_levels_are_a_list_or_a_range():

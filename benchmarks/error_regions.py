@@ -1,0 +1,81 @@
+"""Where an avatar's squared error lies on a run's frames: inside the tracked head without
+its neck, in the rest of the mask (hair beside and below the head, the neck), and outside
+the mask (Gaussians drawn past the true silhouette, onto the background).
+
+    python benchmarks/error_regions.py --avatar RUN/avatar.npz --data DIR [--lod 0]
+        [--split test|train]
+
+Renders each frame as `evaluate` does (the run's resolution, holdout and masks from
+RUN/config.json) and prints a Markdown table: each region's share of the summed squared
+error and of the pixels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REGIONS = ("the head without its neck", "the rest of the mask", "outside the mask")
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--avatar", type=Path, required=True, help="RUN/avatar.npz, config beside it")
+    p.add_argument("--data", type=Path, required=True, help="the run's tracked folder")
+    p.add_argument("--lod", type=float, default=0.0, help="the level scored")
+    p.add_argument("--split", choices=("test", "train"), default="test")
+    return p.parse_args(argv)
+
+
+def error_shares(avatar: Path, data: Path, lod: float, split: str) -> dict[str, tuple]:
+    """{region: (share of the squared error, share of the pixels)} over the split's frames."""
+    from archhead_addon.avatar.runtime import AvatarRuntime
+    from archhead_addon.evaluate.render import render_frame
+    from archhead_addon.flame.model import load_model
+    from archhead_addon.train.dataset import FrameDataset
+
+    config = json.loads((avatar.parent / "config.json").read_text())
+    model = load_model(None)
+    frames = FrameDataset(
+        data,
+        config["resolution"],
+        model,
+        split=split,
+        holdout=config.get("holdout", "last"),
+        mask=config.get("mask", "head"),
+    )
+    runtime = AvatarRuntime.load(avatar, model)
+    error, pixels = np.zeros(len(REGIONS)), np.zeros(len(REGIONS))
+    for i in range(len(frames)):
+        item = frames[i]
+        rgb = render_frame(
+            runtime, lod, item["codes"], item["K"], item["w2c"], frames.size, frames.background
+        ).rgb
+        squared = ((np.clip(rgb, 0, 1) - item["image"]) ** 2).sum(axis=-1)
+        head, mask = item["head"] > 0.5, item["mask"] > 0.5
+        for k, region in enumerate((head, mask & ~head, ~mask & ~head)):
+            error[k] += squared[region].sum()
+            pixels[k] += region.sum()
+    error /= max(error.sum(), 1e-30)
+    pixels /= pixels.sum()
+    return {name: (float(e), float(p)) for name, e, p in zip(REGIONS, error, pixels, strict=True)}
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    shares = error_shares(args.avatar, args.data, args.lod, args.split)
+    print(f"{args.avatar}, {args.split} frames, LOD {args.lod:g}", "", sep="\n")
+    print(
+        "| region | share of the squared error | share of the pixels |", "|---|---:|---:|", sep="\n"
+    )
+    for name, (error, pixels) in shares.items():
+        print(f"| {name} | {100 * error:.0f} % | {100 * pixels:.0f} % |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
