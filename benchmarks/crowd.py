@@ -16,7 +16,8 @@ costs equal trained ones'). Then it measures, each over --frames frames not seen
 - RSS: one head with its avatar, and what each further head adds, by its import and by its
   avatar (all heads are imported first, then the avatars load);
 - a frame change (handlers decoding every avatar; the median over the frames) with the
-  distance-driven levels and with every avatar held at LOD 0, and their ratio; and with the
+  distance-driven levels and with every avatar held at LOD 0, frame by frame in turn, and
+  their ratio; and with the
   add-on paused (Blender evaluating the rigs alone: the part no level of detail changes),
   and paused with each head's shape evaluated from its keys (what Load Avatar's pinning of
   the Basis saves);
@@ -184,14 +185,22 @@ def measure(
     def gaussians() -> int:
         return sum(len(obj.data.vertices) for obj in avatars)
 
-    driven_ms = statistics.median(frame_change() for _ in range(frames))
-    driven_count = gaussians()
-    for s in sessions:
-        s.lod_override = 0.0
-    lod0_ms = statistics.median(frame_change() for _ in range(frames))
-    lod0_count = gaussians()
+    def held_at(lod: float | None) -> float:
+        for s in sessions:
+            s.lod_override = lod
+        return frame_change()
+
+    # driven and LOD-0 frames in turn, so that neither gets the warmer caches or the quieter
+    # stretch of a machine whose load drifts
+    driven, lod0 = [], []
+    for _ in range(frames):
+        driven.append(held_at(None))
+        driven_count = gaussians()
+        lod0.append(held_at(0.0))
+        lod0_count = gaussians()
     for s in sessions:
         s.lod_override = None
+    driven_ms, lod0_ms = statistics.median(driven), statistics.median(lod0)
     # Blender's own part of a frame change (rigs, shape keys, drivers): the add-on paused
     suspend()
     try:
