@@ -140,6 +140,36 @@ def test_schedule_lods_frames_and_learning_rate(dataset, model, tmp_path):
     assert len({one.lods(s)[0] for s in range(10)}) == 10
 
 
+def test_lod1_share_trains_the_sparsest_level_exactly(dataset, model, tmp_path):
+    """With `lod1_share` q, about q of the stage-2 steps put their last level at LOD 1
+    exactly (or, with `lod1_band` w, in [1 - w, 1], denser toward 1) and leave the others as
+    they were; 0 is the plain stratified draw."""
+    plain = trainer(dataset, model, tmp_path, stage1_steps=0, stage2_steps=400, lods_per_step=3)
+    share = trainer(
+        dataset, model, tmp_path, stage1_steps=0, stage2_steps=400, lods_per_step=3,
+        lod1_share=0.25,
+    )  # fmt: skip
+    ends = 0
+    for step in range(400):
+        a, b = plain.lods(step), share.lods(step)
+        assert a[:2] == b[:2] and b[2] in (a[2], 1.0)
+        ends += b[2] == 1.0
+    assert 70 <= ends <= 130  # 100 expected
+    assert not any(lod == 1.0 for step in range(400) for lod in plain.lods(step))
+    band = trainer(
+        dataset, model, tmp_path, stage1_steps=0, stage2_steps=400, lods_per_step=3,
+        lod1_share=1.0, lod1_band=0.1,
+    )  # fmt: skip
+    ends = [band.lods(step)[2] for step in range(400)]
+    assert all(0.9 < lod <= 1.0 for lod in ends)
+    assert sum(lod > 0.975 for lod in ends) > 0.4 * 400  # denser toward 1: half of them
+    assert all(band.lods(step)[:2] == plain.lods(step)[:2] for step in range(400))
+    for key in ("lod1_share", "lod1_band"):
+        for bad in (-0.1, 1.5, float("nan")):
+            with pytest.raises(ValueError, match=key):
+                TrainConfig.from_dict({key: bad})
+
+
 def test_perceptual_term_schedules_stay_unbiased(dataset, model, tmp_path):
     """Every k-th step weighted k; with "one" level, one render of a stage-2 step in turn,
     weighted by the step's count of renders: over any k * n steps each render's term has

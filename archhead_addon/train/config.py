@@ -85,6 +85,11 @@ class TrainConfig:
     # "one": in stage 2, the term on one of the step's renders, in turn over the steps and
     # weighted by their count (again unbiased), instead of on every one.
     lpips_levels: str = "all"
+    # Not the paper's: in stage 2, this share of the steps draws its sparsest level near LOD 1
+    # instead of in its stratum: at 1 - lod1_band v^2 (v uniform in [0, 1), denser toward 1;
+    # band 0: at LOD 1 exactly), where a uniform draw almost never reaches the end.
+    lod1_share: float = 0.0
+    lod1_band: float = 0.0
     avatar: dict = field(default_factory=dict)  # AvatarConfig fields
     checkpoint_every: int = 100  # steps
     seed: int = 0
@@ -117,6 +122,13 @@ class TrainConfig:
             "lpips_levels",
             f"must be one of {LPIPS_LEVELS}, got {self.lpips_levels!r}",
         )
+        for key in ("lod1_share", "lod1_band"):
+            value = getattr(self, key)
+            _require(
+                finite_real(value) and 0 <= value <= 1,
+                key,
+                f"must be a number in [0, 1], got {value!r:.60}",
+            )
         for group in ("lr", "loss"):
             for f in fields(getattr(self, group)):
                 value = getattr(getattr(self, group), f.name)

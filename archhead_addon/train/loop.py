@@ -106,9 +106,11 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def stage2_lods(n: int, u) -> list[float]:
-    """The levels of a stage-2 step (module docstring) from n uniform numbers u in [0, 1)."""
-    return [float((k + u[k]) / n) for k in range(n)]
+def stage2_lods(n: int, u, end: float | None = None) -> list[float]:
+    """The levels of a stage-2 step (module docstring) from n uniform numbers u in [0, 1);
+    `end` replaces the last one (`lod1_share`)."""
+    lods = [float((k + u[k]) / n) for k in range(n)]
+    return lods if end is None else lods[:-1] + [end]
 
 
 def stage2_cost_ratio(s_max: int, s_min: int, n: int) -> float:
@@ -229,8 +231,13 @@ class Trainer:
     def lods(self, step: int) -> list[float]:
         if self.config.stage(step) == 1:
             return [0.0]
-        n = self.config.lods_per_step
-        return stage2_lods(n, np.random.default_rng([self.config.seed, 1 << 20, step]).random(n))
+        cfg = self.config
+        rng = np.random.default_rng([cfg.seed, 1 << 20, step])
+        u = rng.random(cfg.lods_per_step)
+        end = None
+        if cfg.lod1_share and rng.random() < cfg.lod1_share:
+            end = float(1 - cfg.lod1_band * rng.random() ** 2) if cfg.lod1_band else 1.0
+        return stage2_lods(cfg.lods_per_step, u, end)
 
     def lpips_weights(self, step: int, renders: int) -> list[float]:
         """λ_lpips for each render of a step: on every `lpips_every`-th step, weighted by that
