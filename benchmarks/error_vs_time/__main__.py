@@ -31,6 +31,7 @@ from pathlib import Path
 from archhead_addon.io.atomic import write_bytes_atomic
 from archhead_addon.io.cli import run_command
 from archhead_addon.timing import Stopwatch
+from archhead_addon.train.config import HOLDOUTS
 
 BLENDER_LOD = Path(__file__).resolve().parents[1] / "blender_lod.py"
 
@@ -63,6 +64,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--step", type=float, default=0.05, help="LOD step (1 / step an integer)")
     p.add_argument("--test-frames", type=int, help="use only the first N test frames")
     p.add_argument("--resolution", type=int, help="image size (default: the training run's)")
+    p.add_argument(
+        "--holdout",
+        choices=HOLDOUTS,
+        help="the run's held-out frames (default: its config.json's, else the last 10 %%)",
+    )
     p.add_argument("--repeats", type=int, default=3, help="timings: median of this many")
     p.add_argument("--no-blender", action="store_true", help="leave out Blender's update ms")
     p.add_argument(
