@@ -17,10 +17,9 @@ costs equal trained ones'). Then it measures, each over --frames frames not seen
   avatar (all heads are imported first, then the avatars load);
 - a frame change (handlers decoding every avatar; the median over the frames) with the
   distance-driven levels and with every avatar held at LOD 0, frame by frame in turn, and
-  their ratio; and with the
-  add-on paused (Blender evaluating the rigs alone: the part no level of detail changes),
-  and paused with each head's shape evaluated from its keys (what Load Avatar's pinning of
-  the Basis saves);
+  their ratio; and with the add-on paused (Blender evaluating the rigs alone: the part no
+  level of detail changes), and paused with each head's shape evaluated from its keys
+  (what Load Avatar's pinning of the Basis saves);
 - Decode Frames over the whole crowd (one pass), per head and frame;
 - the add-on's handler on frames already decoded, per head: showing a cached frame (its
   codes read from the rig, the frame found, its points written), and with nothing to change;
