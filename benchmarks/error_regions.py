@@ -3,21 +3,23 @@ its neck, in the rest of the mask (hair beside and below the head, the neck), an
 the mask (Gaussians drawn past the true silhouette, onto the background).
 
     python benchmarks/error_regions.py --avatar RUN/avatar.npz --data DIR [--lod 0]
-        [--split test|train]
+        [--split test|train] [--resolution N] [--holdout last|interleaved] [--mask head|person]
 
 Renders each frame as `evaluate` does (the run's resolution, holdout and masks from
-RUN/config.json) and prints a Markdown table: each region's share of the summed squared
-error and of the pixels.
+RUN/config.json unless given, read as `evaluate` reads them) and prints a Markdown table:
+each region's share of the summed squared error and of the pixels. The codes are the
+tracked ones (a run's refined tracking, `lr.codes`, is not read).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from archhead_addon.train.config import HOLDOUTS, MASKS
 
 REGIONS = ("the head without its neck", "the rest of the mask", "outside the mask")
 
@@ -28,32 +30,35 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--data", type=Path, required=True, help="the run's tracked folder")
     p.add_argument("--lod", type=float, default=0.0, help="the level scored")
     p.add_argument("--split", choices=("test", "train"), default="test")
+    p.add_argument("--resolution", type=int, help="image size (default: the run's)")
+    p.add_argument("--holdout", choices=HOLDOUTS, help="held-out frames (default: the run's)")
+    p.add_argument("--mask", choices=MASKS, help="which masks cut the truth (default: the run's)")
     return p.parse_args(argv)
 
 
-def error_shares(avatar: Path, data: Path, lod: float, split: str) -> dict[str, tuple]:
+def error_shares(args: argparse.Namespace) -> dict[str, tuple]:
     """{region: (share of the squared error, share of the pixels)} over the split's frames."""
     from archhead_addon.avatar.runtime import AvatarRuntime
+    from archhead_addon.evaluate.__main__ import run_holdout, run_mask, run_resolution
     from archhead_addon.evaluate.render import render_frame
     from archhead_addon.flame.model import load_model
     from archhead_addon.train.dataset import FrameDataset
 
-    config = json.loads((avatar.parent / "config.json").read_text())
     model = load_model(None)
     frames = FrameDataset(
-        data,
-        config["resolution"],
+        args.data,
+        run_resolution(args),
         model,
-        split=split,
-        holdout=config.get("holdout", "last"),
-        mask=config.get("mask", "head"),
+        split=args.split,
+        holdout=run_holdout(args),
+        mask=run_mask(args),
     )
-    runtime = AvatarRuntime.load(avatar, model)
+    runtime = AvatarRuntime.load(args.avatar, model)
     error, pixels = np.zeros(len(REGIONS)), np.zeros(len(REGIONS))
     for i in range(len(frames)):
         item = frames[i]
         rgb = render_frame(
-            runtime, lod, item["codes"], item["K"], item["w2c"], frames.size, frames.background
+            runtime, args.lod, item["codes"], item["K"], item["w2c"], frames.size, frames.background
         ).rgb
         squared = ((np.clip(rgb, 0, 1) - item["image"]) ** 2).sum(axis=-1)
         head, mask = item["head"] > 0.5, item["mask"] > 0.5
@@ -67,7 +72,7 @@ def error_shares(avatar: Path, data: Path, lod: float, split: str) -> dict[str, 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    shares = error_shares(args.avatar, args.data, args.lod, args.split)
+    shares = error_shares(args)
     print(f"{args.avatar}, {args.split} frames, LOD {args.lod:g}", "", sep="\n")
     print(
         "| region | share of the squared error | share of the pixels |", "|---|---:|---:|", sep="\n"

@@ -88,9 +88,10 @@ def summarise(events: list[tuple[float, dict]]) -> dict:
                 else:
                     plain.setdefault(event["stage"], []).append(gap)
             last, checkpoint = stamp, False
-    steps = [e for _, e in events if e.get("event") == "step"]
-    if not steps:
+    timed = [(stamp, e) for stamp, e in events if e.get("event") == "step"]
+    if not timed:
         raise ValueError("no step events in the log")
+    (first, _), (last_step, final) = timed[0], timed[-1]
     stages = {
         stage: {
             "steps": len(gaps),
@@ -103,22 +104,20 @@ def summarise(events: list[tuple[float, dict]]) -> dict:
         for stage, gaps in sorted(plain.items())
     }
     costs = [gap - stages[stage]["median_ms"] / 1e3 for stage, gap in across if stage in stages]
-    first = next(stamp for stamp, e in events if e.get("event") == "step")
-    last_step = max(stamp for stamp, e in events if e.get("event") == "step")
     return {
         "stages": stages,
         "checkpoints": len(costs),
         "checkpoint_ms": 1e3 * sum(costs) / len(costs) if costs else 0.0,
-        "step": steps[-1]["step"],
-        "total": steps[-1]["total"],
+        "step": final["step"],
+        "total": final["total"],
         "wall_s": last_step - first,
-        "elapsed_s": steps[-1]["elapsed_seconds"],
+        "elapsed_s": final["elapsed_seconds"],
         "start": next((e for _, e in events if e.get("event") == "start"), {}),
     }
 
 
-def report(summary: dict, stage_steps: tuple[int, int] | None, checkpoint_every: int | None):
-    """The table, and the whole run's minutes where its stages' steps are given."""
+def report(summary: dict, config=None):
+    """The table, and the whole run's minutes given its TrainConfig."""
     start = summary["start"]
     print(
         f"{summary['step']:,} of {summary['total']:,} steps on {start.get('device', '?')} "
@@ -138,9 +137,10 @@ def report(summary: dict, stage_steps: tuple[int, int] | None, checkpoint_every:
         f"\na checkpoint adds {summary['checkpoint_ms']:.0f} ms "
         f"(the mean over {summary['checkpoints']} checkpoints)"
     )
-    if stage_steps and checkpoint_every and len(summary["stages"]) == 2:
+    if config is not None and len(summary["stages"]) == 2:
+        stage_steps = (config.stage1_steps, config.stage2_steps)
         steps_s = sum(n * summary["stages"][i + 1]["mean_ms"] for i, n in enumerate(stage_steps))
-        saves = sum(stage_steps) // checkpoint_every
+        saves = sum(stage_steps) // config.checkpoint_every
         whole = (steps_s + saves * summary["checkpoint_ms"]) / 60e3
         print(
             f"the whole run at these rates: {whole:.1f} min ({steps_s / 60e3:.1f} in steps, "
@@ -152,14 +152,9 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     status = record(args.log, args.train, args.minutes) if args.train else 0
     summary = summarise(read(args.log))
-    if args.config:
-        from archhead_addon.train.config import TrainConfig
+    from archhead_addon.train.config import TrainConfig
 
-        config = TrainConfig.load(args.config)
-        stage_steps = (config.stage1_steps, config.stage2_steps)
-        report(summary, stage_steps, config.checkpoint_every)
-    else:
-        report(summary, None, None)
+    report(summary, TrainConfig.load(args.config) if args.config else None)
     return status
 
 
