@@ -103,19 +103,16 @@ def write_points(obj, attributes: dict[str, np.ndarray]) -> None:
     if obj.data.users > 1:
         obj.data = obj.data.copy()
     mesh = obj.data
-    n = len(attributes["position"])
-    if len(mesh.vertices) != n:
-        mesh.clear_geometry()
-        mesh.vertices.add(n)
-    for name in ATTRIBUTES:
-        if name not in attributes and name in mesh.attributes:
-            mesh.attributes.remove(mesh.attributes[name])
+    # Fresh arrays every time: the evaluated scene still shares the last frame's, and writing
+    # into a shared array makes Blender copy it first (20 % of a cached frame's write).
+    mesh.clear_geometry()
+    mesh.vertices.add(len(attributes["position"]))
     mesh.attributes["position"].data.foreach_set("vector", _flat(attributes["position"]))
     for name, (kind, field, _) in ATTRIBUTES.items():
-        if name not in attributes:
-            continue
-        attr = mesh.attributes.get(name) or mesh.attributes.new(name, kind, "POINT")
-        attr.data.foreach_set(field, _flat(attributes[name]))
+        if name in attributes:
+            mesh.attributes.new(name, kind, "POINT").data.foreach_set(
+                field, _flat(attributes[name])
+            )
     mesh.update()
 
 
