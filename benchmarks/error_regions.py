@@ -4,8 +4,9 @@ the mask (Gaussians drawn past the true silhouette, onto the background).
 
     python benchmarks/error_regions.py --avatar RUN/avatar.npz --data DIR [--lod 0]
         [--split test|train] [--resolution N] [--holdout last|interleaved] [--mask head|person]
+        [--cut none|region]
 
-Renders each frame as `evaluate` does (the run's resolution, holdout and masks from
+Renders each frame as `evaluate` does (the run's resolution, holdout, masks and cut from
 RUN/config.json unless given, read as `evaluate` reads them) and prints a Markdown table:
 each region's share of the summed squared error and of the pixels. The codes are the
 tracked ones (a run's refined tracking, `lr.codes`, is not read).
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from archhead_addon.train.config import HOLDOUTS, MASKS
+from archhead_addon.train.config import CUTS, HOLDOUTS, MASKS
 
 REGIONS = ("the head without its neck", "the rest of the mask", "outside the mask")
 
@@ -33,13 +34,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--resolution", type=int, help="image size (default: the run's)")
     p.add_argument("--holdout", choices=HOLDOUTS, help="held-out frames (default: the run's)")
     p.add_argument("--mask", choices=MASKS, help="which masks cut the truth (default: the run's)")
+    p.add_argument("--cut", choices=CUTS, help="what the renders are cut to (default: the run's)")
     return p.parse_args(argv)
 
 
 def error_shares(args: argparse.Namespace) -> dict[str, tuple]:
     """{region: (share of the squared error, share of the pixels)} over the split's frames."""
     from archhead_addon.avatar.runtime import AvatarRuntime
-    from archhead_addon.evaluate.__main__ import run_holdout, run_mask, run_resolution
+    from archhead_addon.evaluate.__main__ import run_cut, run_holdout, run_mask, run_resolution
+    from archhead_addon.evaluate.lods import cut_to_region
     from archhead_addon.evaluate.render import render_frame
     from archhead_addon.flame.model import load_model
     from archhead_addon.train.dataset import FrameDataset
@@ -54,12 +57,15 @@ def error_shares(args: argparse.Namespace) -> dict[str, tuple]:
         mask=run_mask(args),
     )
     runtime = AvatarRuntime.load(args.avatar, model)
+    cut = run_cut(args) == "region"
     error, pixels = np.zeros(len(REGIONS)), np.zeros(len(REGIONS))
     for i in range(len(frames)):
         item = frames[i]
         rgb = render_frame(
             runtime, args.lod, item["codes"], item["K"], item["w2c"], frames.size, frames.background
         ).rgb
+        if cut:
+            rgb = cut_to_region(rgb, item["region"], frames.background)
         squared = ((np.clip(rgb, 0, 1) - item["image"]) ** 2).sum(axis=-1)
         head, mask = item["head"] > 0.5, item["mask"] > 0.5
         for k, region in enumerate((head, mask & ~head, ~mask & ~head)):

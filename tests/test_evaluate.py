@@ -305,6 +305,15 @@ def test_error_regions_split_the_error_over_head_mask_and_background(
     kept = np.mean([(train[i]["mask"] > 0.5) | (train[i]["head"] > 0.5) for i in range(len(train))])
     assert pixels[0] == pytest.approx(100 * head, abs=0.6)
     assert pixels[0] + pixels[1] == pytest.approx(100 * kept, abs=1.1)
+    # renders cut to the tracking's region, as a `cut` run's: less is drawn past the mask
+    # (the region is the tracker's: only its folders, which hold masks_person/, are cut)
+    data = shutil.copytree(tiny_subject, tmp_path / "data")
+    shutil.copytree(data / "masks", data / "masks_person")
+    command[command.index(str(tiny_subject))] = str(data)
+    command += ["--cut", "region"]
+    out = subprocess.run(command, cwd=repo_root, capture_output=True, text=True, check=True).stdout
+    outside = next(line for line in out.splitlines() if line.startswith("| outside"))
+    assert float(outside.split("|")[2].strip(" %")) < error[2]
 
 
 def test_levels_are_a_list_or_a_range():

@@ -108,6 +108,13 @@ def test_runs_train_on_head_masks_or_the_whole_person(tmp_path, model):
     np.testing.assert_allclose(whole[0]["mask"], person, atol=1 / 255)
     assert whole[0]["image"][:10].max() == 0.0
     assert head[0]["head"].shape == (60, 80) and head[0]["head"].any()
+    # what the tracker's mask may keep, from the tracked mesh alone (a `cut` run's renders)
+    found = surface_regions(
+        model, posed(model, head.sequence, 0), head.K[0], head.sequence.w2c[0], (60, 80)
+    )
+    np.testing.assert_array_equal(head[0]["region"], region(found.head, found.mesh))
+    assert 0 < head[0]["region"].mean() < 1
+    assert whole[0]["region"].min() == 1.0  # the whole person: nothing cut
     (tmp_path / "masks_person" / "00003.png").unlink()
     with pytest.raises(InputError, match="00003"):
         FrameDataset(tmp_path, 80, model, split="all", mask="person")

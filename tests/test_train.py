@@ -4,6 +4,7 @@ changed value refused, a state without one resumed with a warning); the config f
 the per-frame refinement of the tracked codes (lr.codes, train/refine.py), its exact resume
 and the refined tracking that `evaluate` scores training frames with."""
 
+import dataclasses
 import json
 import re
 
@@ -15,6 +16,7 @@ from training_subject import TINY_CONFIG, write_config
 
 from archhead_addon.avatar.runtime import AvatarRuntime
 from archhead_addon.evaluate.__main__ import main as evaluate_main
+from archhead_addon.evaluate.lods import cut_to_region
 from archhead_addon.evaluate.render import render_frame
 from archhead_addon.flame.model import load_model
 from archhead_addon.io.errors import InputError, InputWarning
@@ -168,6 +170,26 @@ def test_lod1_share_trains_the_sparsest_level_exactly(dataset, model, tmp_path):
         for bad in (-0.1, 1.5, float("nan")):
             with pytest.raises(ValueError, match=key):
                 TrainConfig.from_dict({key: bad})
+
+
+def test_a_cut_run_renders_the_background_outside_the_frames_region(dataset, model, tmp_path):
+    plain = trainer(dataset, model, tmp_path / "plain")
+    cut = trainer(dataset, model, tmp_path / "cut", cut="region")
+    frame = cut.frames[0]
+    h = frame.region.shape[0] // 2
+    region = torch.ones_like(frame.region)
+    region[:h] = 0
+    frame = dataclasses.replace(frame, region=region)
+    with torch.no_grad():
+        drawn, cut_render = plain.render(frame, 0.0)[0], cut.render(frame, 0.0)[0]
+    background = torch.as_tensor(dataset.background)
+    assert torch.equal(cut_render[:h], background.expand(h, *cut_render.shape[1:2], 3))
+    assert not torch.allclose(drawn[:h], cut_render[:h])  # the head reaches the cut half
+    torch.testing.assert_close(cut_render[h:], drawn[h:])
+    scored = cut_to_region(drawn.numpy(), region[..., 0].numpy(), dataset.background)
+    np.testing.assert_allclose(scored, cut_render.numpy(), atol=1e-6)  # as `evaluate --cut`
+    with pytest.raises(InputError, match="cut"):
+        TrainConfig(cut="torso")
 
 
 def test_perceptual_term_schedules_stay_unbiased(dataset, model, tmp_path):

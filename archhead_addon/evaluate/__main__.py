@@ -4,7 +4,8 @@ frames, or every tenth with `--holdout interleaved`, as RUN/config.json says):
     python -m archhead_addon.evaluate --avatar RUN/avatar.npz --data DIR --out EVAL
         [--lods 0,0.25,0.5,0.75,1 | --lods 0:1:0.05] [--precisions fp32,fp16]
         [--resolution N] [--flame FILE] [--split test|train] [--frames N] [--mask head|person]
-        [--holdout last|interleaved] [--drive SEQ [--drive-lod L] [--drive-frames N]]
+        [--holdout last|interleaved] [--cut none|region]
+        [--drive SEQ [--drive-lod L] [--drive-frames N]]
 
 Writes EVAL/metrics.csv and EVAL/metrics.md (L1, PSNR, SSIM, ST-LPIPS, Gaussian count and
 render milliseconds per LOD and precision, and the LOD 1 : LOD 0 ratios beside the paper's),
@@ -14,12 +15,14 @@ the levels of SHEET_LODS that were evaluated).
 --drive renders the avatar driven by another tracked sequence (any supported format) into
 EVAL/reenact/ (cross-identity reenactment). Every metric is given over the whole frame
 (the masks leave the background exact) and over the tracked head without its neck. The
-resolution defaults to the training run's (RUN/config.json); so do the masks and the held-out
-frames (`--holdout`: an avatar moved away from its run's config.json says which). `--split
-train` scores the frames the avatar was fitted to (how well it fits, against how well it
-generalises); `--frames N` takes N frames evenly spread over the split. A run that refined
-its tracking (`lr.codes`) is scored with RUN/tracking_refined.npz: its training frames with
-the codes they were trained with, its held-out frames as tracked. Exit status 2: bad input.
+resolution defaults to the training run's (RUN/config.json); so do the masks, the held-out
+frames (`--holdout`: an avatar moved away from its run's config.json says which) and what the
+renders are cut to (`--cut region`: the tracking's head-and-neck region, as the run
+trained). `--split train` scores the frames the avatar was fitted to (how well it fits,
+against how well it generalises); `--frames N` takes N frames evenly spread over the split.
+A run that refined its tracking (`lr.codes`) is scored with RUN/tracking_refined.npz: its
+training frames with the codes they were trained with, its held-out frames as tracked. Exit
+status 2: bad input.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from pathlib import Path
 from ..io.cli import run_command
 from ..io.errors import InputError
 from ..threads import choose_openmp_waiting
-from ..train.config import HOLDOUTS, MASKS
+from ..train.config import CUTS, HOLDOUTS, MASKS
 from ..train.run_folder import RunFolder
 
 SHEET_ROWS, SHEET_LODS = 4, (0.0, 0.5, 1.0)  # EVAL/sheet.png: test frames by levels
@@ -118,6 +121,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="which frames the run held out (default: the run's; without its config.json, the "
         "paper's last 10 %%)",
     )
+    p.add_argument(
+        "--cut",
+        choices=CUTS,
+        help="cut the renders to the tracking's head-and-neck region, as the truth is "
+        "(default: as the run trained)",
+    )
     p.add_argument("--drive", type=Path, help="tracked sequence to drive the avatar with")
     p.add_argument(
         "--drive-lod", type=float, default=0.0, help="level of detail of --drive (default 0)"
@@ -165,6 +174,11 @@ def run_holdout(args) -> str:
 def run_mask(args) -> str:
     """Which masks cut the frames: --mask, else the run's (config.json), else head and neck."""
     return args.mask or run_config(args).get("mask", "head")
+
+
+def run_cut(args) -> str:
+    """What the renders are cut to: --cut, else the run's (config.json), else nothing."""
+    return args.cut or run_config(args).get("cut", "none")
 
 
 def run_tracking(args):
@@ -223,6 +237,7 @@ def evaluate(args) -> int:
         args.lods,
         args.precisions,
         keep_images,
+        cut=run_cut(args) == "region",
     )
     title = (
         f"{args.avatar.name}: {len(frames)} {args.split} frames of {args.data.name}, "

@@ -51,10 +51,11 @@ def evaluate_lods(
     lods=LODS,
     precisions=PRECISIONS,
     on_frame=None,
+    cut: bool = False,
 ) -> list[LodResult]:
-    """Render every frame (dataset items) at every (lod, precision); on_frame(lod, precision,
-    index, rgb) sees each image. Times exclude a first, untimed decode that fills the
-    runtime's per-resolution cache."""
+    """Render every frame (dataset items) at every (lod, precision), with `cut` cut to the
+    item's `region` as the truth is; on_frame(lod, precision, index, rgb) sees each image.
+    Times exclude a first, untimed decode that fills the runtime's per-resolution cache."""
     results = []
     for precision in precisions:
         for lod in lods:
@@ -65,10 +66,11 @@ def evaluate_lods(
                 out = render_frame(
                     runtime, lod, item["codes"], item["K"], item["w2c"], size, background, precision
                 )
+                rgb = cut_to_region(out.rgb, item["region"], background) if cut else out.rgb
                 if on_frame is not None:
-                    on_frame(lod, precision, i, out.rgb)
+                    on_frame(lod, precision, i, rgb)
                 scores.append(
-                    _scores(out.rgb, item["image"], item.get("head"), item.get("face"), perceptual)
+                    _scores(rgb, item["image"], item.get("head"), item.get("face"), perceptual)
                 )
                 decode.append(out.decode_ms)
                 splat.append(out.splat_ms)
@@ -92,6 +94,12 @@ def evaluate_lods(
                 )
             )
     return results
+
+
+def cut_to_region(rgb: np.ndarray, region: np.ndarray, background) -> np.ndarray:
+    """The render where `region` (H,W) holds, the background elsewhere (train `cut`)."""
+    bg = np.asarray(background, np.float32)
+    return bg + region[..., None] * (rgb - bg)
 
 
 def _scores(rgb: np.ndarray, target: np.ndarray, head, face, perceptual) -> tuple[float, ...]:

@@ -24,6 +24,7 @@ from .config_ranges import check_ranges
 
 HOLDOUTS = ("last", "interleaved")  # which frames test (dataset.split_indices)
 MASKS = ("head", "person")  # which masks cut the frames (dataset.MASK_FOLDERS)
+CUTS = ("none", "region")  # what a run's renders are cut to before the loss and the scores
 LPIPS_LEVELS = ("all", "one")  # which of a stage-2 step's renders the perceptual term sees
 
 CONFIG_DIR = Path(__file__).parent / "configs"
@@ -98,6 +99,10 @@ class TrainConfig:
     holdout: str = "last"  # the test frames (HOLDOUTS): the last 10 %, or every tenth
     mask: str = "head"  # MASKS: the tracker's head-and-neck masks, or the whole person's
     frames: int = 0  # train on this many frames of the split, evenly spread; 0: all of them
+    # Not the paper's: "region" cuts each render to the tracking's head-and-neck region (the
+    # dataset's `region`: what the mask keeps of the truth, from the tracked mesh alone)
+    # before the loss, so that hair the mask's straight cuts leave out costs nothing.
+    cut: str = "none"
 
     def __post_init__(self):
         """Bad values raise InputError naming the key (`load` adds the file). JSON allows
@@ -153,6 +158,7 @@ class TrainConfig:
             f"must be 'auto', 'cpu' or 'cuda', got {self.device!r}",
         )
         _require(self.mask in MASKS, "mask", f"must be one of {MASKS}, got {self.mask!r}")
+        _require(self.cut in CUTS, "cut", f"must be one of {CUTS}, got {self.cut!r}")
         _require(self.frames >= 0, "frames", f"must be >= 0 (0: every frame), got {self.frames}")
         _require(
             self.holdout in HOLDOUTS,

@@ -31,7 +31,10 @@ Folder layout (DATA):
 - B: the parts/ files when given (resized, soft at the edges); else the model's eye and
   mouth labels rasterized with occlusion in each frame (`parts_mask`). `head`: the tracked
   head without its neck (`flame.regions`), rasterized the same way, where the evaluation
-  scores the face alone.
+  scores the face alone. `region`: with the head-and-neck masks, where the tracker's mask may
+  hold anything (`track.head_mask.region`, from the tracked mesh alone, without the person's
+  segmentation); all ones with the whole person's or with masks not the tracker's. A run with `cut`
+  "region" cuts its renders to it, as the mask cuts the truth.
 - Split (paper 4.1): the first 90 % of frames train, the last 10 % test (at least one each
   when there are two or more frames); `split="all"` gives every frame. With
   `holdout="interleaved"` every tenth frame tests instead (frames 4, 14, ...): test poses
@@ -41,10 +44,11 @@ Folder layout (DATA):
   the quality ladder fits one or ten frames alone, and scores those same frames.
 
 `FrameDataset(...)[i]` is a dict of float32 arrays: `image` (H,W,3) in [0,1], `mask` (H,W),
-`parts` (H,W), `head` (H,W), `K` (3,3), `w2c` (4,4), `codes` {shape, expr, jaw, neck, eyes,
-rotation, translation} (1-D each, fitted to the model's widths), plus `frame_id` and `index`
-(the frame's position in the whole sequence). With `cache=True` (default) frames are decoded
-once and kept (about 24 bytes per pixel); the arrays are then shared, so do not modify them.
+`parts` (H,W), `head` (H,W), `region` (H,W), `K` (3,3), `w2c` (4,4), `codes` {shape, expr,
+jaw, neck, eyes, rotation, translation} (1-D each, fitted to the model's widths), plus
+`frame_id` and `index` (the frame's position in the whole sequence). With `cache=True`
+(default) frames are decoded once and kept (about 28 bytes per pixel); the arrays are then
+shared, so do not modify them.
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ from ..io.errors import InputError, warn_input
 from ..sequences import Sequence, read_sequence
 from ..sequences.common import numbered_files
 from ..sequences.validation import check_trainable
+from ..track.head_mask import region
 from .config import HOLDOUTS, MASKS
 from .images import IMAGE_SUFFIXES, image_size, read_image, read_mask, resize
 from .parts_mask import surface_regions
@@ -299,6 +304,13 @@ class FrameDataset:
     def has_masks(self) -> bool:
         return self.mask_paths is not None
 
+    @property
+    def cuts_to_region(self) -> bool:
+        """Whether the truth is cut to the tracking's head-and-neck region, so that `region`
+        is more than all ones: the tracker's masks/ (its folders hold masks_person/ beside
+        them; other masks may keep anything)."""
+        return self.mask == "head" and self.has_masks and (self.root / PERSON_MASKS_DIR).is_dir()
+
     def __len__(self) -> int:
         return len(self.indices)
 
@@ -324,6 +336,7 @@ class FrameDataset:
         vertices = forward(self.model, static_offset=seq.static_offset, **codes)[0]
         regions = surface_regions(self.model, vertices, self.K[t], seq.w2c[t], self.size)
         parts = regions.parts
+        cut = region(regions.head, regions.mesh) if self.cuts_to_region else True
         if self.parts_paths is not None:
             parts = resize(read_mask(self.parts_paths[t]), self.size)
         return {
@@ -331,6 +344,7 @@ class FrameDataset:
             "mask": np.clip(resize(mask.astype(np.float32), self.size), 0, 1),
             "parts": parts.astype(np.float32),
             "head": regions.head,
+            "region": np.broadcast_to(np.float32(cut), self.size).astype(np.float32),
             "face": regions.face > 0.5,  # bool: a cached training set holds one per frame
             "K": self.K[t].astype(np.float32),
             "w2c": seq.w2c[t].astype(np.float32),

@@ -74,6 +74,7 @@ class Frame:
     K: np.ndarray  # (3,3) at the training resolution
     w2c: np.ndarray  # (4,4)
     index: int = -1  # the frame's position in the tracked sequence
+    region: torch.Tensor | None = None  # (H,W,1) where the truth may hold the person (`cut`)
 
 
 def frames_on_device(dataset, device: torch.device) -> list[Frame]:
@@ -93,6 +94,7 @@ def frames_on_device(dataset, device: torch.device) -> list[Frame]:
                 item["K"].astype(np.float64),
                 item["w2c"].astype(np.float64),
                 int(item["index"]),
+                torch.as_tensor(item["region"], device=device)[..., None],
             )
         )
     return frames
@@ -144,6 +146,7 @@ class Trainer:
         self.background = torch.as_tensor(
             display_background(background, avatar.config.colour_space), dtype=torch.float32
         )
+        self.image_background = torch.as_tensor(background, dtype=torch.float32, device=device)
         perceptual = ShiftTolerantLPIPS().to(device) if config.loss.lpips > 0 else None
         self.loss = TrainingLoss(config.loss, perceptual)
         groups = {
@@ -264,7 +267,7 @@ class Trainer:
 
     def render(self, frame: Frame, lod: float, codes: dict | None = None):
         """(rgb (H,W,3), Gaussians) of a frame at level `lod` (with `codes` instead of the
-        frame's own when given)."""
+        frame's own when given), cut to the frame's region with `cut` "region"."""
         g = self.avatar(lod, **(frame.codes if codes is None else codes))
         h, w = frame.image.shape[:2]
         linear = self.avatar.config.colour_space == "linear"
@@ -281,7 +284,10 @@ class Trainer:
             background=self.background,
             num_threads=self.config.threads,
         )
-        return (linear_to_srgb_torch(out.rgb) if linear else out.rgb), g
+        rgb = linear_to_srgb_torch(out.rgb) if linear else out.rgb
+        if self.config.cut == "region" and frame.region is not None:
+            rgb = torch.lerp(self.image_background, rgb, frame.region)
+        return rgb, g
 
     def train_step(self) -> StepReport:
         step, cfg = self.step, self.config

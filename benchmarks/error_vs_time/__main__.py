@@ -2,7 +2,8 @@
 
     python -m benchmarks.error_vs_time [--avatar out/run_cpu/avatar.npz]
         [--data out/subject256] [--out out/report] [--docs DIR] [--step 0.05]
-        [--test-frames N] [--no-blender] [--ablations [--steps N] [--ablation-config F]]
+        [--test-frames N] [--holdout H] [--mask M] [--cut C] [--no-blender]
+        [--ablations [--steps N] [--ablation-config F]]
 
 (from the checkout's root).
 
@@ -31,7 +32,7 @@ from pathlib import Path
 from archhead_addon.io.atomic import write_bytes_atomic
 from archhead_addon.io.cli import run_command
 from archhead_addon.timing import Stopwatch
-from archhead_addon.train.config import HOLDOUTS
+from archhead_addon.train.config import CUTS, HOLDOUTS, MASKS
 
 BLENDER_LOD = Path(__file__).resolve().parents[1] / "blender_lod.py"
 
@@ -69,6 +70,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         choices=HOLDOUTS,
         help="the run's held-out frames (default: its config.json's, else the last 10 %%)",
     )
+    p.add_argument("--mask", choices=MASKS, help="which masks cut the truth (default: the run's)")
+    p.add_argument("--cut", choices=CUTS, help="what the renders are cut to (default: the run's)")
     p.add_argument("--repeats", type=int, default=3, help="timings: median of this many")
     p.add_argument("--no-blender", action="store_true", help="leave out Blender's update ms")
     p.add_argument(
@@ -119,7 +122,7 @@ def run(args) -> Path:
     import torch
 
     from archhead_addon.avatar.runtime import AvatarRuntime
-    from archhead_addon.evaluate.__main__ import run_holdout, run_resolution
+    from archhead_addon.evaluate.__main__ import run_cut, run_holdout, run_mask, run_resolution
     from archhead_addon.evaluate.lods import evaluate_lods
     from archhead_addon.flame.model import load_model
     from archhead_addon.train.config import TrainConfig
@@ -134,14 +137,20 @@ def run(args) -> Path:
     model = load_model()
     runtime = AvatarRuntime.load(args.avatar, model)
     test = FrameDataset(
-        args.data, run_resolution(args), model, split="test", holdout=run_holdout(args)
+        args.data,
+        run_resolution(args),
+        model,
+        split="test",
+        holdout=run_holdout(args),
+        mask=run_mask(args),
     )
+    cut = run_cut(args) == "region"
     count = len(test) if args.test_frames is None else min(args.test_frames, len(test))
     frames = [test[i] for i in range(count)]
     perceptual = ShiftTolerantLPIPS()
     lods = lod_steps(args.step)
     rows, images = measure_lods(
-        runtime, frames, test.size, test.background, perceptual, lods, args.repeats
+        runtime, frames, test.size, test.background, perceptual, lods, args.repeats, cut
     )
     update = {} if args.no_blender else blender_update_ms(args.avatar, args.step, args.repeats)
     pairs = smoothness(images)
@@ -192,6 +201,7 @@ def run(args) -> Path:
                     perceptual,
                     report.ABLATION_LODS,
                     ("fp32",),
+                    cut=cut,
                 ),
                 seconds,
             )

@@ -48,8 +48,10 @@ def measure_lods(
     perceptual,
     lods: list[float],
     repeats: int = 3,
+    cut: bool = False,
 ) -> tuple[list[LodRow], dict[float, np.ndarray]]:
-    """The rows per LOD and the first test frame's fp32 image per LOD."""
+    """The rows per LOD and the first test frame's fp32 image per LOD (`cut`: the renders
+    cut to the region, as `evaluate` scores a run that trained so)."""
     first: dict[float, np.ndarray] = {}
 
     def keep_first(lod, precision, index, rgb):
@@ -57,7 +59,7 @@ def measure_lods(
             first[lod] = rgb
 
     results = evaluate_lods(
-        runtime, frames, size, background, perceptual, lods, ("fp32", "fp16"), keep_first
+        runtime, frames, size, background, perceptual, lods, ("fp32", "fp16"), keep_first, cut
     )
     by_key = {(r.lod, r.precision): r for r in results}
     return [
