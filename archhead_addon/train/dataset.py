@@ -282,7 +282,8 @@ class FrameDataset:
         check_trainable(seq)  # codes read with a warning, that training would overflow on
         return seq
 
-    def _scaled_intrinsics(self, source: tuple[int, int]) -> np.ndarray:
+    def _scaled_intrinsics(self, source: tuple[int, int], size=None) -> np.ndarray:
+        """The tracking's K for frames of `source` size resized to `size` (the target)."""
         tracked = self.sequence.image_size or source
         h, w = source
         if abs(tracked[0] * w / tracked[1] - h) > 1.0:
@@ -293,7 +294,8 @@ class FrameDataset:
                 f"tracking's camera is for {tracked[1]}x{tracked[0]}: the aspect "
                 "ratios differ",
             )
-        scale = np.diag([self.size[1] / tracked[1], self.size[0] / tracked[0], 1.0])
+        size = self.size if size is None else size
+        scale = np.diag([size[1] / tracked[1], size[0] / tracked[0], 1.0])
         return scale @ self.sequence.K
 
     @property
@@ -325,6 +327,14 @@ class FrameDataset:
             self._cache[t] = item
         return item
 
+    def _region(self, t: int, vertices: np.ndarray) -> np.ndarray:
+        """The tracker's head-and-neck region of frame t, drawn at the frames' own size as the
+        tracker drew it (so that it holds every pixel its mask keeps) and resized as the masks
+        are: soft at the edges."""
+        K = self._scaled_intrinsics(self.source_size, self.source_size)[t]
+        found = surface_regions(self.model, vertices, K, self.sequence.w2c[t], self.source_size)
+        return resize(region(found.head, found.mesh).astype(np.float32), self.size)
+
     def _load(self, t: int) -> dict:
         seq = self.sequence
         rgb, alpha = read_image(self.frame_paths[t])
@@ -336,7 +346,7 @@ class FrameDataset:
         vertices = forward(self.model, static_offset=seq.static_offset, **codes)[0]
         regions = surface_regions(self.model, vertices, self.K[t], seq.w2c[t], self.size)
         parts = regions.parts
-        cut = region(regions.head, regions.mesh) if self.cuts_to_region else True
+        cut = self._region(t, vertices) if self.cuts_to_region else np.ones(self.size, np.float32)
         if self.parts_paths is not None:
             parts = resize(read_mask(self.parts_paths[t]), self.size)
         return {
@@ -344,7 +354,7 @@ class FrameDataset:
             "mask": np.clip(resize(mask.astype(np.float32), self.size), 0, 1),
             "parts": parts.astype(np.float32),
             "head": regions.head,
-            "region": np.broadcast_to(np.float32(cut), self.size).astype(np.float32),
+            "region": cut,
             "face": regions.face > 0.5,  # bool: a cached training set holds one per frame
             "K": self.K[t].astype(np.float32),
             "w2c": seq.w2c[t].astype(np.float32),
