@@ -330,7 +330,8 @@ class FrameDataset:
     def _region(self, t: int, vertices: np.ndarray) -> np.ndarray:
         """The tracker's head-and-neck region of frame t, drawn at the frames' own size as the
         tracker drew it (so that it holds every pixel its mask keeps) and resized as the masks
-        are: soft at the edges."""
+        are: each pixel the share of it inside, as the truth's mask is the share inside the
+        person and the region. A render cut so is cut as the truth was at the frames' size."""
         K = self._scaled_intrinsics(self.source_size, self.source_size)[t]
         found = surface_regions(self.model, vertices, K, self.sequence.w2c[t], self.source_size)
         return resize(region(found.head, found.mesh).astype(np.float32), self.size)
