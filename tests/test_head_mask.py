@@ -17,6 +17,7 @@ from archhead_addon.sequences.demo import demo_sequence
 from archhead_addon.track.head_mask import HAIR_REACH, head_and_neck_masks, region
 from archhead_addon.train.config import TrainConfig
 from archhead_addon.train.dataset import FrameDataset
+from archhead_addon.train.images import resize
 from archhead_addon.train.parts_mask import surface_regions
 
 
@@ -114,6 +115,10 @@ def test_runs_train_on_head_masks_or_the_whole_person(tmp_path, model):
     )
     np.testing.assert_array_equal(head[0]["region"], region(found.head, found.mesh))
     assert 0 < head[0]["region"].mean() < 1
+    # at a smaller training size: drawn at the frames' size, then resized as the masks are
+    small = FrameDataset(tmp_path, 40, model, split="all", background=(0, 0, 0))
+    wanted = resize(region(found.head, found.mesh).astype(np.float32), (30, 40))
+    np.testing.assert_allclose(small[0]["region"], wanted, atol=1e-6)
     assert whole[0]["region"].min() == 1.0  # the whole person: nothing cut
     (tmp_path / "masks_person" / "00003.png").unlink()
     with pytest.raises(InputError, match="00003"):
