@@ -181,6 +181,14 @@ def test_tracked_folders_hold_both_masks(tmp_path):
         assert (head > 127).sum() < (person > 127).sum()  # shoulders and shirt left out
     data = FrameDataset(out, 96, load_model(), split="all")
     assert (data[0]["head"] <= (data[0]["mask"] > 0)).mean() > 0.95  # the face is kept
+    # a `cut` run's region holds all the mask keeps, at any training size: cutting a render
+    # there never removes what the truth shows
+    for size in (96, 40):
+        cut = FrameDataset(out, size, load_model(), split="all")
+        assert cut.cuts_to_region
+        for i in range(len(cut)):
+            assert (cut[i]["mask"] <= cut[i]["region"] + 1e-5).all()
+            assert cut[i]["region"].min() < 1
 
 
 def test_a_killed_tracking_leaves_nothing_for_the_next_run(tmp_path):
