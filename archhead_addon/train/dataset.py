@@ -263,6 +263,15 @@ class FrameDataset:
             spread = np.linspace(0, len(self.indices) - 1, min(frames, len(self.indices)))
             self.indices = [self.indices[int(i)] for i in np.unique(spread.round())]
         self.split, self.holdout, self.mask = split, holdout, mask
+        # Whether the truth is cut to the tracking's head-and-neck region, so that `region`
+        # is more than all ones: the tracker's masks/ (its folders hold masks_person/ beside
+        # them; other masks may keep anything).
+        self.cuts_to_region = (
+            mask == "head" and self.has_masks and (self.root / PERSON_MASKS_DIR).is_dir()
+        )
+        # the region is drawn with the cameras at the frames' own size; uncut, one shared array
+        self._source_K = self._scaled_intrinsics(source, source) if self.cuts_to_region else None
+        self._uncut = np.ones(self.size, np.float32)
         self._cache: dict[int, dict] | None = {} if cache else None
 
     def _read_tracking(self, tracking) -> Sequence:
@@ -306,13 +315,6 @@ class FrameDataset:
     def has_masks(self) -> bool:
         return self.mask_paths is not None
 
-    @property
-    def cuts_to_region(self) -> bool:
-        """Whether the truth is cut to the tracking's head-and-neck region, so that `region`
-        is more than all ones: the tracker's masks/ (its folders hold masks_person/ beside
-        them; other masks may keep anything)."""
-        return self.mask == "head" and self.has_masks and (self.root / PERSON_MASKS_DIR).is_dir()
-
     def __len__(self) -> int:
         return len(self.indices)
 
@@ -332,8 +334,9 @@ class FrameDataset:
         tracker drew it (so that it holds every pixel its mask keeps) and resized as the masks
         are: each pixel the share of it inside, as the truth's mask is the share inside the
         person and the region. A render cut so is cut as the truth was at the frames' size."""
-        K = self._scaled_intrinsics(self.source_size, self.source_size)[t]
-        found = surface_regions(self.model, vertices, K, self.sequence.w2c[t], self.source_size)
+        found = surface_regions(
+            self.model, vertices, self._source_K[t], self.sequence.w2c[t], self.source_size
+        )
         return resize(region(found.head, found.mesh).astype(np.float32), self.size)
 
     def _load(self, t: int) -> dict:
@@ -347,7 +350,7 @@ class FrameDataset:
         vertices = forward(self.model, static_offset=seq.static_offset, **codes)[0]
         regions = surface_regions(self.model, vertices, self.K[t], seq.w2c[t], self.size)
         parts = regions.parts
-        cut = self._region(t, vertices) if self.cuts_to_region else np.ones(self.size, np.float32)
+        cut = self._region(t, vertices) if self.cuts_to_region else self._uncut
         if self.parts_paths is not None:
             parts = resize(read_mask(self.parts_paths[t]), self.size)
         return {
