@@ -9,7 +9,8 @@ FOLDER gets:
   documents and tests left out) and stlpips_pytorch with only the AlexNet weights training
   uses: a machine with torch and numpy needs nothing else;
 - data/NAME: the tracked folder, its frames as JPEG (white where the head-and-neck mask is 0,
-  which training and evaluation composite away) and its masks re-compressed; prints how far
+  which training and evaluation composite away) and its masks and regions re-compressed
+  (masks_person/ stays behind: the GPU check trains and scores on head and neck); prints how far
   the JPEG frames lie from the originals inside the mask (PSNR), which bounds what the
   compression moves a score;
 - runs/NAME: a finished run's avatar.npz, checkpoint.json and config.json (`--run`), for
@@ -69,9 +70,11 @@ def pack_data(data: Path, out: Path, quality: int) -> float:
     """The tracked folder with JPEG frames; PSNR of the JPEG frames inside the mask."""
     (out / "frames").mkdir(parents=True)
     shutil.copyfile(data / "tracking.npz", out / "tracking.npz")
-    shutil.copytree(data / "masks", out / "masks")
-    for mask in (out / "masks").glob("*.png"):
-        Image.open(mask).save(mask, optimize=True)
+    for masks in ("masks", "regions"):  # regions/: what `"cut": "region"` runs cut to
+        if (data / masks).is_dir():
+            shutil.copytree(data / masks, out / masks)
+            for mask in (out / masks).glob("*.png"):
+                Image.open(mask).save(mask, optimize=True)
     squared, pixels = 0.0, 0
     for frame in sorted((data / "frames").glob("*.png")):
         rgb = np.asarray(Image.open(frame).convert("RGB")).copy()

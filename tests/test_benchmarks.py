@@ -177,12 +177,21 @@ def test_gpu_check_answers_help_and_refuses_without_cuda(repo_root):
 
 def test_gpu_bundle_packs_the_check_for_a_gpu_machine(tiny_subject, tmp_path, repo_root):
     """scripts/gpu_bundle.py: JPEG frames, white outside the mask and close to the PNG inside
-    it, the masks and tracking as they were, gsplat and only the AlexNet ST-LPIPS weights."""
+    it, the masks, regions and tracking as they were, gsplat and only the AlexNet ST-LPIPS
+    weights."""
+    import shutil
+
     import numpy as np
     from PIL import Image
 
+    subject = tmp_path / tiny_subject.name  # with regions/, as the tracker writes them
+    shutil.copytree(tiny_subject, subject)
+    (subject / "regions").mkdir()
+    for mask in (subject / "masks").glob("*.png"):
+        inside = np.asarray(Image.open(mask).convert("L")) > 0
+        Image.fromarray((inside * 255).astype(np.uint8)).save(subject / "regions" / mask.name)
     bundle = tmp_path / "bundle"
-    command = [sys.executable, "scripts/gpu_bundle.py", "--data", str(tiny_subject)]
+    command = [sys.executable, "scripts/gpu_bundle.py", "--data", str(subject)]
     command += ["--out", str(bundle)]
     done = subprocess.run(
         command,
@@ -194,19 +203,22 @@ def test_gpu_bundle_packs_the_check_for_a_gpu_machine(tiny_subject, tmp_path, re
     )
     psnr = float(re.search(r"JPEG frames ([\d.]+) dB", done.stdout).group(1))
     assert psnr > 35
-    data = bundle / "data" / tiny_subject.name
-    pngs = sorted((tiny_subject / "frames").glob("*.png"))
+    data = bundle / "data" / subject.name
+    pngs = sorted((subject / "frames").glob("*.png"))
     assert [p.stem for p in pngs] == sorted(p.stem for p in (data / "frames").glob("*.jpg"))
     mask = np.asarray(Image.open(data / "masks" / pngs[0].name))
-    assert np.array_equal(mask, np.asarray(Image.open(tiny_subject / "masks" / pngs[0].name)))
+    assert np.array_equal(mask, np.asarray(Image.open(subject / "masks" / pngs[0].name)))
+    for name in (p.name for p in pngs):
+        region = np.asarray(Image.open(data / "regions" / name))
+        assert np.array_equal(region, np.asarray(Image.open(subject / "regions" / name)))
     frame = np.asarray(Image.open(data / "frames" / f"{pngs[0].stem}.jpg")).astype(int)
     assert frame[mask == 0].mean() > 250  # white (the subject's own frames are black there)
-    assert (data / "tracking.npz").read_bytes() == (tiny_subject / "tracking.npz").read_bytes()
+    assert (data / "tracking.npz").read_bytes() == (subject / "tracking.npz").read_bytes()
     assert (bundle / "site" / "gsplat" / "__init__.py").is_file()
     weights = sorted(p.name for p in (bundle / "site" / "stlpips_pytorch").rglob("*.pth"))
     assert weights == ["alex_shift_tolerant.pth"]
     script = (bundle / "run.sh").read_text()
-    assert f"--data $B/data/{tiny_subject.name}" in script and "--score" not in script
+    assert f"--data $B/data/{subject.name}" in script and "--score" not in script
     refused = subprocess.run(
         command,
         cwd=repo_root,

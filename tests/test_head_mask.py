@@ -2,6 +2,7 @@
 the metrics over the head."""
 
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -173,10 +174,14 @@ def test_tracked_folders_hold_both_masks(tmp_path):
     track(fetch_media() / REAL_VIDEO, out, TrackOptions(size=96, max_frames=6, photometric=None))
     names = sorted(p.name for p in (out / "masks").iterdir())
     assert names == sorted(p.name for p in (out / "masks_person").iterdir()) and names
+    assert names == sorted(p.name for p in (out / "regions").iterdir())
     for name in names:
         head = np.asarray(Image.open(out / "masks" / name), np.int32)
         person = np.asarray(Image.open(out / "masks_person" / name), np.int32)
+        inside = np.asarray(Image.open(out / "regions" / name), np.int32)
+        assert set(np.unique(inside)) == {0, 255}  # the region is hard, the person soft
         assert (head <= person + 1).all()  # head and neck lie within the person
+        assert (head[inside == 0] == 0).all()  # ... and within the region
         assert head.sum() > 0.2 * person.sum()
         assert (head > 127).sum() < (person > 127).sum()  # shoulders and shirt left out
     data = FrameDataset(out, 96, load_model(), split="all")
@@ -189,6 +194,15 @@ def test_tracked_folders_hold_both_masks(tmp_path):
         for i in range(len(cut)):
             assert (cut[i]["mask"] <= cut[i]["region"] + 1e-5).all()
             assert cut[i]["region"].min() < 1
+    # a folder tracked before regions/ existed: the region drawn from its tracking is the one
+    # the tracker wrote
+    written = FrameDataset(out, 40, load_model(), split="all")
+    written = [written[i]["region"] for i in range(len(written))]
+    shutil.rmtree(out / "regions")
+    drawn = FrameDataset(out, 40, load_model(), split="all")
+    assert drawn.cuts_to_region and drawn.region_paths is None
+    for i in range(len(drawn)):
+        np.testing.assert_allclose(drawn[i]["region"], written[i], atol=1e-6)
 
 
 def test_a_killed_tracking_leaves_nothing_for_the_next_run(tmp_path):

@@ -1,7 +1,9 @@
 """The tracker's output: a training data folder, complete or absent.
 
-It holds frames/, masks/ (head and neck, `head_mask`), masks_person/ (the whole person, for
-avatars with shoulders), tracking.npz and tracking_report.json. There is no parts/: the
+It holds frames/, masks/ (head and neck, `head_mask`), regions/ (the region that cut the
+person to head and neck, from the tracked mesh alone: training cuts its renders to it),
+masks_person/ (the whole person, for avatars with shoulders), tracking.npz and
+tracking_report.json. There is no parts/: the
 training dataset rasterizes the eye/mouth mask B from the tracked mesh at the training size
 (`train.parts_mask`), the same function the tracker would call, exact at any resolution.
 
@@ -27,7 +29,7 @@ import numpy as np
 
 from ..io.atomic import write_bytes_atomic
 from ..synthetic.png import encode_png
-from ..train.dataset import FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR
+from ..train.dataset import FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR, REGIONS_DIR
 
 REPORT_FILE = "tracking_report.json"
 
@@ -78,7 +80,7 @@ def staged_folder(out) -> Iterator[Path]:
     remove_stale_stages(out.parent)
     stage = new_stage(out.parent, out.name)
     try:
-        for name in (FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR):
+        for name in (FRAMES_DIR, MASKS_DIR, PERSON_MASKS_DIR, REGIONS_DIR):
             (stage / name).mkdir()
         yield stage
     except BaseException:

@@ -15,7 +15,7 @@ from ..flame.model import load_model
 from ..io.errors import InputError, warn_input
 from ..sequences import write_canonical
 from ..timing import Stopwatch
-from ..train.dataset import MASKS_DIR, PERSON_MASKS_DIR, TRACKING_FILE
+from ..train.dataset import MASKS_DIR, PERSON_MASKS_DIR, REGIONS_DIR, TRACKING_FILE
 from ..train.images import resize
 from .detect import MAX_HAND_COVER, FaceDetector
 from .embedding import landmark_embedding
@@ -210,6 +210,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             zip(numbers[kept], people, regions, strict=True)
         ):
             write_mask(stage / MASKS_DIR, int(number), person / 255.0 * inside)
+            write_mask(stage / REGIONS_DIR, int(number), inside)
             say(event="step", stage="masks", step=j + 1, total=n)
         times["masks"] = watch.seconds
         seq = fitted_sequence(

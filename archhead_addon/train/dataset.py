@@ -8,6 +8,8 @@ Folder layout (DATA):
     DATA/masks/<n>.<ext>                  optional: foreground alpha, the frames' numbers
     DATA/masks_person/<n>.<ext>           optional: the whole person (mask="person"); the
                                           tracker's masks/ keep head and neck only
+    DATA/regions/<n>.<ext>                optional: the tracker's head-and-neck region, which
+                                          cuts its masks/ (`region` below)
     DATA/parts/<n>.<ext>                  optional: the eye/mouth mask B, the frames' numbers
     DATA/tracking.npz                     the tracked sequence (or pass `tracking=` a file or
                                           folder in any format `read_sequence` reads)
@@ -33,8 +35,11 @@ Folder layout (DATA):
   head without its neck (`flame.regions`), rasterized the same way, where the evaluation
   scores the face alone. `region`: with the head-and-neck masks, where the tracker's mask may
   hold anything (`track.head_mask.region`, from the tracked mesh alone, without the person's
-  segmentation); all ones with the whole person's or with masks not the tracker's. A run with `cut`
-  "region" cuts its renders to it, as the mask cuts the truth.
+  segmentation): the regions/ files, resized; in a tracked folder without them (tracked
+  before the tracker wrote them; it holds masks_person/) drawn from the tracking at the
+  frames' size as the tracker drew it, then resized; all ones with the whole person's masks
+  or with masks not the tracker's. A run with `cut` "region" cuts its renders to it, as the
+  mask cuts the truth.
 - Split (paper 4.1): the first 90 % of frames train, the last 10 % test (at least one each
   when there are two or more frames); `split="all"` gives every frame. With
   `holdout="interleaved"` every tenth frame tests instead (frames 4, 14, ...): test poses
@@ -69,7 +74,7 @@ from .images import IMAGE_SUFFIXES, image_size, read_image, read_mask, resize
 from .parts_mask import surface_regions
 
 FRAMES_DIR, MASKS_DIR, PARTS_DIR, TRACKING_FILE = "frames", "masks", "parts", "tracking.npz"
-PERSON_MASKS_DIR = "masks_person"
+PERSON_MASKS_DIR, REGIONS_DIR = "masks_person", "regions"
 MASK_FOLDERS = dict(zip(MASKS, (MASKS_DIR, PERSON_MASKS_DIR), strict=True))  # `mask` -> folder
 SPLITS = ("train", "test", "all")
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
@@ -241,8 +246,14 @@ class FrameDataset:
                 f"no eye/mouth labels in the model and no "
                 f"{PARTS_DIR}/ masks in {self.root}: the parts mask B is empty",
             )
+        # the region cutting the head-and-neck masks, as the tracker wrote it
+        self.region_paths = (
+            _companions(self.root / REGIONS_DIR, numbered, "region")
+            if mask == "head" and self.mask_paths is not None
+            else None
+        )
         source = _one_size(self.frame_paths)
-        for companions in (self.mask_paths, self.parts_paths):
+        for companions in (self.mask_paths, self.parts_paths, self.region_paths):
             if companions is not None:
                 _one_size(companions, want=source)
         self.source_size = source
@@ -264,13 +275,15 @@ class FrameDataset:
             self.indices = [self.indices[int(i)] for i in np.unique(spread.round())]
         self.split, self.holdout, self.mask = split, holdout, mask
         # Whether the truth is cut to the tracking's head-and-neck region, so that `region`
-        # is more than all ones: the tracker's masks/ (its folders hold masks_person/ beside
-        # them; other masks may keep anything).
-        self.cuts_to_region = (
+        # is more than all ones: the tracker's masks/ (its folders hold regions/, or in older
+        # ones masks_person/, beside them; other masks may keep anything).
+        self.cuts_to_region = self.region_paths is not None or (
             mask == "head" and self.has_masks and (self.root / PERSON_MASKS_DIR).is_dir()
         )
-        # the region is drawn with the cameras at the frames' own size; uncut, one shared array
-        self._source_K = self._scaled_intrinsics(source, source) if self.cuts_to_region else None
+        # without regions/ the region is drawn with the cameras at the frames' own size;
+        # uncut, one shared array
+        drawn = self.cuts_to_region and self.region_paths is None
+        self._source_K = self._scaled_intrinsics(source, source) if drawn else None
         self._uncut = np.ones(self.size, np.float32)
         self._cache: dict[int, dict] | None = {} if cache else None
 
@@ -330,10 +343,12 @@ class FrameDataset:
         return item
 
     def _region(self, t: int, vertices: np.ndarray) -> np.ndarray:
-        """The tracker's head-and-neck region of frame t, drawn at the frames' own size as the
-        tracker drew it (so that it holds every pixel its mask keeps) and resized as the masks
-        are: each pixel the share of it inside, as the truth's mask is the share inside the
-        person and the region. A render cut so is cut as the truth was at the frames' size."""
+        """The tracker's head-and-neck region of frame t at the frames' own size (its file, or
+        drawn as the tracker drew it, so that it holds every pixel its mask keeps), resized as
+        the masks are: each pixel the share of it inside, as the truth's mask is the share
+        inside the person and the region. A render cut so is cut as the truth was."""
+        if self.region_paths is not None:
+            return resize(read_mask(self.region_paths[t]), self.size)
         found = surface_regions(
             self.model, vertices, self._source_K[t], self.sequence.w2c[t], self.source_size
         )
