@@ -3,9 +3,9 @@
 It holds frames/, masks/ (head and neck, `head_mask`), regions/ (the region that cut the
 person to head and neck, from the tracked mesh alone: training cuts its renders to it),
 masks_person/ (the whole person, for avatars with shoulders), tracking.npz and
-tracking_report.json. There is no parts/: the
-training dataset rasterizes the eye/mouth mask B from the tracked mesh at the training size
-(`train.parts_mask`), the same function the tracker would call, exact at any resolution.
+tracking_report.json. There is no parts/: the training dataset rasterizes the eye/mouth mask B
+from the tracked mesh at the training size (`train.parts_mask`), the same function the tracker
+would call, exact at any resolution.
 
 Everything is written into a temporary sibling of OUT (`OUT.partial-*`) that is renamed to
 OUT only when complete, so a failed or killed run never leaves a half-written folder behind
