@@ -1,11 +1,13 @@
 """The tracker end to end: frames -> landmarks and masks -> FLAME fit -> training folder.
 
 Frames are decoded twice (landmarks first, then the crop once the whole clip's face
-position is known) so memory holds landmarks and small masks, not the video.
+position is known) so memory holds landmarks and masks, not the video; the person masks,
+soft and mostly flat, are kept deflated (a full-HD frame's 2 MB in a few tens of kB).
 """
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,11 +18,18 @@ from ..io.errors import InputError, warn_input
 from ..sequences import write_canonical
 from ..timing import Stopwatch
 from ..train.dataset import MASKS_DIR, PERSON_MASKS_DIR, REGIONS_DIR, TRACKING_FILE
-from ..train.images import resize
+from ..train.images import read_mask, resize
 from .detect import MAX_HAND_COVER, FaceDetector
 from .embedding import landmark_embedding
 from .fit import ClipFit, FitOptions, crop_intrinsics, fit_landmarks, fitted_sequence
-from .folder import remove_stale_stages, staged_folder, write_frame, write_mask, write_report
+from .folder import (
+    frame_name,
+    remove_stale_stages,
+    staged_folder,
+    write_frame,
+    write_mask,
+    write_report,
+)
 from .head_mask import head_and_neck_masks
 from .media import open_frames
 from .photometric import PhotometricOptions, refine_photometric
@@ -40,6 +49,18 @@ class TrackOptions:
     # refine the landmark fit against the frames (photometric.py); None: landmarks only
     photometric: PhotometricOptions | None = field(default_factory=PhotometricOptions)
     static_offset: bool = False  # fit a per-vertex offset of the identity (with photometric)
+
+
+class _Deflated:
+    """A uint8 array kept zlib-compressed: a clip's person masks at the source size would
+    take 2 MB a full-HD frame, gigabytes for a phone video of a minute or two."""
+
+    def __init__(self, array: np.ndarray):
+        self.shape = array.shape
+        self.data = zlib.compress(np.ascontiguousarray(array).tobytes(), 1)
+
+    def array(self) -> np.ndarray:
+        return np.frombuffer(zlib.decompress(self.data), np.uint8).reshape(self.shape)
 
 
 def _square_crop(landmarks: np.ndarray, size: tuple[int, int]) -> tuple[int, int, int]:
@@ -102,7 +123,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             else:
                 numbers.append(number)
                 landmarks.append(found.landmarks)
-                masks.append(np.round(found.mask * 255).astype(np.uint8))
+                masks.append(_Deflated(np.round(found.mask * 255).astype(np.uint8)))
             say(event="step", stage="detect", step=len(numbers) + len(dropped), total=total)
     times["detect"] = watch.seconds
     n_read = len(numbers) + len(dropped)
@@ -160,18 +181,17 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     small = min(opt.photometric.size, opt.size) if opt.photometric else 0
     with staged_folder(out) as stage:
         watch = Stopwatch()
-        images, image_masks, people = [], [], []
+        images, image_masks = [], []
         for number, rgb in source.frames(total):
             j = position.get(number)
             if j is None:
                 continue
             crop = rgb[y0 : y0 + side, x0 : x0 + side]
-            mask = masks[kept[j]][y0 : y0 + side, x0 : x0 + side].astype(np.float32) / 255.0
+            mask = masks[kept[j]].array()[y0 : y0 + side, x0 : x0 + side].astype(np.float32) / 255
             frame = np.round(np.clip(resize(crop, out_size), 0, 255)).astype(np.uint8)
             mask = resize(mask, out_size)
             write_frame(stage, number, frame)
             write_mask(stage / PERSON_MASKS_DIR, number, mask)
-            people.append(np.round(np.clip(mask, 0, 1) * 255).astype(np.uint8))
             if small:
                 images.append(
                     np.round(np.clip(resize(crop, (small, small)), 0, 255)).astype(np.uint8)
@@ -206,10 +226,9 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         K = crop_intrinsics(fit.K, (x0, y0, side), opt.size)
         watch = Stopwatch()  # the head-and-neck masks follow the final fit
         regions = head_and_neck_masks(model, fit.codes, K, fit.w2c, out_size)
-        for j, (number, person, inside) in enumerate(
-            zip(numbers[kept], people, regions, strict=True)
-        ):
-            write_mask(stage / MASKS_DIR, int(number), person / 255.0 * inside)
+        for j, (number, inside) in enumerate(zip(numbers[kept], regions, strict=True)):
+            person = read_mask(stage / PERSON_MASKS_DIR / frame_name(int(number)))
+            write_mask(stage / MASKS_DIR, int(number), person * inside)
             write_mask(stage / REGIONS_DIR, int(number), inside)
             say(event="step", stage="masks", step=j + 1, total=n)
         times["masks"] = watch.seconds
