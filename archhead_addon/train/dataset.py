@@ -247,10 +247,9 @@ class FrameDataset:
                 f"{PARTS_DIR}/ masks in {self.root}: the parts mask B is empty",
             )
         # the region cutting the head-and-neck masks, as the tracker wrote it
+        head_masks = mask == "head" and self.mask_paths is not None
         self.region_paths = (
-            _companions(self.root / REGIONS_DIR, numbered, "region")
-            if mask == "head" and self.mask_paths is not None
-            else None
+            _companions(self.root / REGIONS_DIR, numbered, "region") if head_masks else None
         )
         source = _one_size(self.frame_paths)
         for companions in (self.mask_paths, self.parts_paths, self.region_paths):
@@ -277,8 +276,8 @@ class FrameDataset:
         # Whether the truth is cut to the tracking's head-and-neck region, so that `region`
         # is more than all ones: the tracker's masks/ (its folders hold regions/, or in older
         # ones masks_person/, beside them; other masks may keep anything).
-        self.cuts_to_region = self.region_paths is not None or (
-            mask == "head" and self.has_masks and (self.root / PERSON_MASKS_DIR).is_dir()
+        self.cuts_to_region = head_masks and (
+            self.region_paths is not None or (self.root / PERSON_MASKS_DIR).is_dir()
         )
         # without regions/ the region is drawn with the cameras at the frames' own size;
         # uncut, one shared array
