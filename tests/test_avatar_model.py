@@ -155,9 +155,24 @@ def test_the_module_pickles_and_deep_copies_with_its_caches():
     with torch.no_grad():
         before = avatar(0.8, **codes)
         buffer = io.BytesIO()
-        torch.save(avatar, buffer)  # the per-resolution caches are plain data
+        torch.save(avatar, buffer)  # the per-resolution caches pickle without their tables
         twin = copy.deepcopy(avatar)
         torch.testing.assert_close(twin(0.8, **codes).sh, before.sh, atol=0, rtol=0)
+        assert twin.level_cache.misses == 1 and len(avatar.level_cache) == 1
+
+
+def test_every_resolution_a_run_samples_stays_cached():
+    """Stage 2 draws S anywhere in [s_min, s_max]: once each has been built, no step builds a
+    table again (a cache bounded by count rebuilt most of them, a UV raster each time)."""
+    avatar = make_avatar(AvatarConfig(s_max=48, s_min=8, levels=(48, 16), n_expr=100))
+    cfg, cache = avatar.config, avatar.level_cache
+    sizes = range(cfg.s_min, cfg.s_max + 1)
+    with torch.no_grad():
+        for _ in range(2):
+            for lod in np.linspace(0.0, 1.0, 4 * len(sizes)):
+                avatar(float(lod), **frame_codes(seed=3))
+    assert cache.misses == len(sizes) == len(cache)
+    assert cache.hits == 8 * len(sizes) - cache.misses
 
 
 def test_flame_carries_the_identity_and_follows_a_loaded_one():

@@ -192,6 +192,26 @@ def test_a_cut_run_renders_the_background_outside_the_frames_region(dataset, mod
         TrainConfig(cut="torso")
 
 
+def test_a_frames_pose_is_computed_once_and_renders_as_its_codes(dataset, model, tmp_path):
+    """The trainer keeps FLAME posed by each frame's own codes; what it draws is what the
+    avatar draws from the codes, and the gradients reach the same parameters."""
+    t = trainer(dataset, model, tmp_path)
+    frame = t.frames[1]
+    calls = []
+    pose = t.avatar.pose
+    t.avatar.pose = lambda *codes: calls.append(1) or pose(*codes)
+    for _ in range(2):
+        kept, g = t.render(frame, 0.3)
+        assert g.means.requires_grad
+    assert len(calls) == 1
+    with torch.no_grad():
+        plain = t.render(frame, 0.3, codes=frame.codes)[0]  # codes given: posed each time
+    torch.testing.assert_close(kept.detach(), plain, atol=0, rtol=0)
+    twin = dataclasses.replace(frame)  # another frame object: its own pose, never another's
+    t.render(twin, 0.3)
+    assert len(calls) == 3
+
+
 def test_perceptual_term_schedules_stay_unbiased(dataset, model, tmp_path):
     """Every k-th step weighted k; with "one" level, one render of a stage-2 step in turn,
     weighted by the step's count of renders: over any k * n steps each render's term has

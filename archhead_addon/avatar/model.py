@@ -36,7 +36,6 @@ Choices (the paper leaves them to its supplement):
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from dataclasses import replace
 
 import numpy as np
@@ -54,10 +53,10 @@ from ..uv.raster import UVRaster, face_texel_scale, position_map
 from .config import QUAT_EPS, AvatarConfig
 from .gaussians import SH_C0, Gaussians, quat_multiply
 from .identity import bake_identity, offset_mesh
+from .level_cache import LEVEL_BYTES, LevelCache
 from .lod import resolution_for_lod
 from .resample import resample_plan, texel_features
 
-MAX_LEVELS = 32  # per-resolution tables kept on the device (stage 2 samples every S)
 FEATURE_INIT_STD = 0.1
 OUTPUT_INIT_GAIN = 0.1
 
@@ -145,7 +144,7 @@ class ArchHeadAvatar(nn.Module):
         )
         self.decoder = Decoder(config)
         self._init_outputs()
-        self._levels: OrderedDict = OrderedDict()  # plain data, so the module still pickles
+        self.level_cache = LevelCache(self._build_level, LEVEL_BYTES)
 
     def _bake_identity(self) -> None:
         """FLAME with the identity in its template (identity.bake_identity), which saves the
@@ -203,16 +202,9 @@ class ArchHeadAvatar(nn.Module):
 
     def level(self, size: int) -> dict[str, torch.Tensor]:
         """Per-resolution constants on the model's device: texels, face corners, barycentrics,
-        base log scale (texel size on the face), the feature field's resample plan. Kept for
-        the MAX_LEVELS most recent sizes."""
-        key = (size, self.identity_shape.device)
-        if key in self._levels:
-            self._levels.move_to_end(key)
-        else:
-            self._levels[key] = self._build_level(*key)
-            if len(self._levels) > MAX_LEVELS:
-                self._levels.popitem(last=False)
-        return self._levels[key]
+        base log scale (texel size on the face), the feature field's resample plan
+        (`LevelCache`: every S a training run samples stays)."""
+        return self.level_cache(size, self.identity_shape.device)
 
     def _build_level(self, size: int, device) -> dict[str, torch.Tensor]:
         table = self.raster.table(size)
@@ -234,6 +226,18 @@ class ArchHeadAvatar(nn.Module):
         ]
         return torch.tanh(self.mapping(torch.cat(parts)))
 
+    def pose(self, expr=None, jaw=None, neck=None, eyes=None):
+        """FLAME posed by the codes, with the avatar's identity: vertices (V,3), joints (5,3)."""
+        like = self.identity_shape
+        expr_t = None if expr is None else _code(expr, self.mesh.n_expr, "expr", like, True)
+        verts, joints, _ = self.flame.forward_full(
+            expr=None if expr_t is None else expr_t[None],
+            neck=_code(neck, 3, "neck", like)[None],
+            jaw=_code(jaw, 3, "jaw", like)[None],
+            eyes=_code(eyes, 6, "eyes", like)[None],
+        )
+        return verts[0], joints[0]
+
     def encode(self, positions: torch.Tensor) -> torch.Tensor:
         p = positions - self.pe_centre
         a = (p[:, None, :] * self.freqs[:, None]).reshape(len(p), -1)
@@ -249,20 +253,16 @@ class ArchHeadAvatar(nn.Module):
         eyes=None,
         rotation=None,
         translation=None,
+        posed=None,
     ) -> Gaussians:
-        """Gaussians of one frame. Codes are 1-D (or (1, n)); absent ones are zero."""
+        """Gaussians of one frame. Codes are 1-D (or (1, n)); absent ones are zero. `posed`:
+        `pose(expr, jaw, neck, eyes)` when the caller keeps it (training, per frame)."""
         cfg = self.config
         l, size = resolution_for_lod(lod, cfg.s_max, cfg.s_min)
         lv = self.level(size)
         like = self.identity_shape
-        expr_t = None if expr is None else _code(expr, self.mesh.n_expr, "expr", like, True)
-        verts, joints, _ = self.flame.forward_full(
-            expr=None if expr_t is None else expr_t[None],
-            neck=_code(neck, 3, "neck", like)[None],
-            jaw=_code(jaw, 3, "jaw", like)[None],
-            eyes=_code(eyes, 6, "eyes", like)[None],
-        )
-        pos = position_map(verts[0], lv["vert_idx"], lv["bary"])
+        verts, joints = self.pose(expr, jaw, neck, eyes) if posed is None else posed
+        pos = position_map(verts, lv["vert_idx"], lv["bary"])
         n = len(pos)
         parts = [self.encode(pos)]
         if cfg.levels:
@@ -272,7 +272,7 @@ class ArchHeadAvatar(nn.Module):
 
         offsets = cfg.offset_unit * raw["offset"]
         rot = _code(rotation, 3, "rotation", like)
-        j0 = joints[0, 0]
+        j0 = joints[0]
         means = (pos + offsets - j0) @ axis_angle_to_matrix(rot).T + j0
         means = means + _code(translation, 3, "translation", like)
         q = raw["rotation"]

@@ -40,6 +40,7 @@ from .config import EYES_DIM, HEADS, JAW_DIM, QUAT_EPS
 from .culling import ViewFrustum, reach
 from .gaussians import Gaussians, quat_multiply
 from .identity import bake_identity
+from .level_cache import LEVEL_BYTES, LevelCache
 from .lod import blend_weights, resolution_for_lod
 
 F32, F16 = np.float32, np.float16
@@ -48,45 +49,6 @@ CHUNK = 8192  # most texels per pass through the decoder (its widest activations
 # Culling pays when it leaves out more than this share's complement: below, the gathers of
 # the kept texels cost about what decoding the others would.
 CULL_WORTH = 0.9
-LEVEL_BYTES = 256 << 20  # the per-S tables kept: a full-size avatar's S = 256 takes 49 MB
-
-
-class LevelCache:
-    """`build(size, precision)`'s tables, least recently used out once their bytes pass
-    `max_bytes` (the newest always stays); `hits`, `misses` and `len()` for tests. Safe to
-    call from several threads (`decode_batch`): a table asked for by two at once is built once."""
-
-    def __init__(self, build, max_bytes: int):
-        self.build, self.max_bytes = build, int(max_bytes)
-        self._levels: dict[tuple, tuple[dict, int]] = {}  # insertion order: least recent first
-        self.nbytes = self.hits = self.misses = 0
-        self._lock = threading.Lock()
-
-    def __call__(self, size: int, precision: str) -> dict:
-        with self._lock:
-            return self._get((int(size), precision))
-
-    def _get(self, key: tuple) -> dict:
-        found = self._levels.pop(key, None)
-        if found is not None:
-            self.hits += 1
-        else:
-            self.misses += 1
-            level = self.build(*key)
-            found = (level, sum(getattr(v, "nbytes", 0) for v in level.values()))
-            self.nbytes += found[1]
-        self._levels[key] = found
-        while self.nbytes > self.max_bytes and len(self._levels) > 1:
-            self.nbytes -= self._levels.pop(next(iter(self._levels)))[1]
-        return found[0]
-
-    def __len__(self) -> int:
-        return len(self._levels)
-
-    def clear(self) -> None:
-        with self._lock:
-            self._levels.clear()
-            self.nbytes = 0
 
 
 class AvatarRuntime:
