@@ -102,6 +102,24 @@ def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_su
     assert re.search(r"stage 1: step [\d.]+x .* resample [\d.]+x", out)
 
 
+def test_step_changes_times_every_variant_against_the_step_before(
+    repo_root, tiny_subject, tmp_path
+):
+    from training_subject import write_config
+
+    config = write_config(tmp_path / "tiny.json", stage1_steps=4, stage2_steps=4)
+    out = _benchmark(
+        repo_root, "step_changes.py", "--data", tiny_subject, "--config", config,
+        "--blocks", 1, "--steps", 2, "--warm", 1,
+    )  # fmt: skip
+    rows = [line.split("|")[1:6] for line in out.splitlines() if re.match(r"\| [12] \|", line)]
+    assert [(r[0].strip(), r[1].strip()) for r in rows] == [
+        (s, v) for s in "12" for v in ("before", "tables", "pose", "adam", "after")
+    ]
+    assert all(r[4].strip() == "1.000x" for r in rows if r[1].strip() == "before")
+    assert all(float(r[3]) > 0 for r in rows)
+
+
 def test_step_times_stamps_a_run_and_prices_its_checkpoints(repo_root, tiny_subject, tmp_path):
     from training_subject import write_config
 
