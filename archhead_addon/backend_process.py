@@ -75,7 +75,8 @@ def format_eta(seconds) -> str:
 class BackendRun:
     """One backend process: `poll()` from a timer until `returncode` is set, then `close()`."""
 
-    def __init__(self, command: list, log_path, cwd=None, grace: float = CANCEL_GRACE_S):
+    def __init__(self, command: list, log_path, cwd=None, grace: float = CANCEL_GRACE_S, env=None):
+        """`env`: variables to set in the process's environment beyond this one's."""
         self.command = [str(c) for c in command]
         self.log_path = Path(log_path)
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -84,12 +85,13 @@ class BackendRun:
         self._log.write(f"$ {' '.join(self.command)}\n")
         self._lock = threading.Lock()
         self._records: queue.SimpleQueue = queue.SimpleQueue()
-        env = dict(os.environ)
+        extra_env, env = env, dict(os.environ)
         # the package shipped beside this file, whatever that Python's site-packages hold
         env["PYTHONPATH"] = os.pathsep.join(
             filter(None, [str(PACKAGE_ROOT), env.get("PYTHONPATH")])
         )
         env["PYTHONUNBUFFERED"] = "1"
+        env.update(extra_env or {})
         self.process = subprocess.Popen(
             self.command,
             cwd=cwd,

@@ -95,6 +95,14 @@ def choose_openmp_waiting(environ=None) -> str:
     return f"OpenMP threads sleep while they wait (other jobs on the cores: load {shown})"
 
 
+def openmp_waiting_env() -> dict[str, str]:
+    """`choose_openmp_waiting`'s choice as the variables to give a child process, this
+    process's own environment left alone (Blender launching the stages of Avatar from Video)."""
+    chosen = dict(os.environ)
+    choose_openmp_waiting(chosen)
+    return {k: chosen[k] for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT") if k in chosen}
+
+
 @contextmanager
 def one_blas_thread() -> Iterator[bool]:
     """Holds numpy's OpenBLAS to one thread until the block ends and yields True; yields

@@ -64,7 +64,9 @@ def start_tracking(
     size: int = 512,
     photometric: bool = True,
     static_offset: bool = False,
+    env: dict | None = None,
 ) -> TrackingRun:
+    """`env`: variables for the backend's environment (BackendRun)."""
     if current_tracking() is not None:
         raise ValueError("a tracking run is already going; cancel it first")
     source, out_dir = Path(source).resolve(), Path(out_dir).resolve()
@@ -78,7 +80,7 @@ def start_tracking(
         command += ["--flame", bpy.path.abspath(model)]
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     log = out_dir.parent / f"{out_dir.name}.{LOG_NAME}"
-    STATE.tracking_run = run = TrackingRun(BackendRun(command, log), out_dir, log)
+    STATE.tracking_run = run = TrackingRun(BackendRun(command, log, env=env), out_dir, log)
     return run
 
 

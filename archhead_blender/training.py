@@ -197,8 +197,10 @@ def start_training(
     settings: dict,
     resume: bool = False,
     head_name: str | None = None,
+    env: dict | None = None,
 ) -> TrainingRun:
-    """Write the config, launch the backend, remember the run for the panel."""
+    """Write the config, launch the backend, remember the run for the panel. `env`:
+    variables for the backend's environment (BackendRun)."""
     if current_run() is not None:
         raise ValueError("a training run is already going; cancel it first")
     out_dir = Path(out_dir).resolve()
@@ -211,7 +213,7 @@ def start_training(
     model = flame_model_path(context)
     if model:
         command += ["--flame", bpy.path.abspath(model)]
-    backend = BackendRun(command, run_folder.log)
+    backend = BackendRun(command, run_folder.log, env=env)
     STATE.training_run = run = TrainingRun(backend, out_dir, head_name)
     return run
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import bpy
 
 from archhead_addon.io.errors import InputError
+from archhead_addon.threads import openmp_waiting_env
 from archhead_addon.train.dataset import FRAMES_DIR, TRACKING_FILE
 from archhead_addon.train.run_folder import RunFolder
 from archhead_addon.video_avatar import DATA, RUN, stages_done
@@ -52,6 +53,9 @@ class VideoAvatarRun:
         self.head_name: str | None = None  # the head (mesh) once imported or found
         self.cancelled = False
         self.result: tuple[str, str] | None = None  # (report type, message) once over
+        # how the stages' OpenMP threads wait, chosen before the tracker loads the cores:
+        # training, choosing when it starts, would take the tracker's load for other jobs'
+        self.waiting: dict[str, str] = {}
 
     @property
     def data(self) -> Path:
@@ -64,12 +68,19 @@ class VideoAvatarRun:
     # -- stages ---------------------------------------------------------------------------------
     def start(self, context) -> None:
         done = stages_done(self.out)
+        self.waiting = openmp_waiting_env()
         if not done["tracked"]:
             if not str(self.video).strip():
                 raise ValueError("Video: choose the video to track")
             self.stage = "track"
             self.tracking = start_tracking(
-                context, self.video, self.data, self.frames, self.size, self.photometric
+                context,
+                self.video,
+                self.data,
+                self.frames,
+                self.size,
+                self.photometric,
+                env=self.waiting,
             )
             return
         self._train(context, done["trained"])
@@ -94,6 +105,7 @@ class VideoAvatarRun:
             settings,
             resume,
             head.name,
+            env=self.waiting,
         )
         self.training.resume_hint = self.resume_hint()
 

@@ -2,6 +2,7 @@
 run again, each finished stage kept."""
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -64,3 +65,36 @@ def test_a_stopped_run_resumes_and_a_bad_video_names_the_stage(tmp_path):
     )
     assert done.returncode == 2 and "not_a_video.mp4" in done.stderr
     assert "track stopped" in done.stderr
+
+
+def test_both_stages_wait_as_chosen_before_tracking(tmp_path, monkeypatch):
+    """The command chooses how OpenMP threads wait while the cores are as other jobs left
+    them, and both stages inherit it: training, choosing alone after the tracker, read the
+    tracker's own load as other jobs' and let its threads sleep on quiet cores."""
+    from archhead_addon import video_avatar
+
+    class Args:
+        out, video, flame, frames, preset, progress_json = (
+            tmp_path,
+            "clip.mp4",
+            None,
+            None,
+            "cpu",
+            False,
+        )
+
+    for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
+        monkeypatch.delenv(name, raising=False)
+    loads = iter([0.1] + [2.0] * 10)  # quiet at the start, then the tracker's load
+    monkeypatch.setattr(os, "getloadavg", lambda: (next(loads),) * 3)
+    seen = {}
+
+    def stage(command):
+        name = "train" if "archhead_addon.train" in command else "track"
+        seen[name] = {k: os.environ.get(k) for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+        return 0
+
+    monkeypatch.setattr(video_avatar, "_run_stage", stage)
+    assert video_avatar.run_avatar(Args) == 0
+    assert seen["track"] == seen["train"]
+    assert seen["train"]["GOMP_SPINCOUNT"] and seen["train"]["OMP_WAIT_POLICY"] is None

@@ -126,3 +126,27 @@ def test_openmp_threads_spin_briefly_on_quiet_cores_and_sleep_on_busy_ones(monke
         environ = dict(chosen)
         assert "as set" in choose_openmp_waiting(environ)
         assert environ == chosen  # the user's choice stands
+
+
+def test_a_child_gets_the_waiting_chosen_for_it_and_this_process_keeps_its_own(
+    monkeypatch, tmp_path
+):
+    """Avatar from Video chooses once, before the tracker loads the cores, and gives the
+    choice to both stages' processes (BackendRun's env), leaving Blender's environment alone."""
+    import os
+    import sys
+
+    import archhead_addon.threads as threads
+    from archhead_addon.backend_process import BackendRun
+
+    for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(threads.os, "getloadavg", lambda: (0.2, 1.0, 1.0))
+    chosen = threads.openmp_waiting_env()
+    assert chosen == {"GOMP_SPINCOUNT": str(threads.SPIN_COUNT)}
+    assert "GOMP_SPINCOUNT" not in os.environ
+    show = "import os, sys; sys.stderr.write('spin=' + os.environ.get('GOMP_SPINCOUNT', 'none'))"
+    run = BackendRun([sys.executable, "-c", show], tmp_path / "child.log", env=chosen)
+    assert run.process.wait(60) == 0
+    run.close()
+    assert f"spin={threads.SPIN_COUNT}" in (tmp_path / "child.log").read_text()
