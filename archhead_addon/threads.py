@@ -70,6 +70,7 @@ def limit_thread_environment(environ=None) -> None:
 # How long an idle OpenMP thread spins for the next parallel region before it sleeps
 # (GNU OpenMP's iterations; a few microseconds). docs/training_profile.md has the figures.
 SPIN_COUNT = 2000
+WAITING = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")  # the variables that set how they wait
 QUIET_LOAD = 0.5  # runnable processes, the last minute's average, that still leave a core free
 
 
@@ -81,7 +82,7 @@ def choose_openmp_waiting(environ=None) -> str:
     slower. So: a short spin (GOMP_SPINCOUNT) when the cores are quiet, and PASSIVE when they
     are not; left alone when either variable is set."""
     environ = os.environ if environ is None else environ
-    if "OMP_WAIT_POLICY" in environ or "GOMP_SPINCOUNT" in environ:
+    if any(k in environ for k in WAITING):
         return "OpenMP waiting as set in the environment"
     try:
         load = os.getloadavg()[0]
@@ -100,7 +101,7 @@ def openmp_waiting_env() -> dict[str, str]:
     process's own environment left alone (Blender launching the stages of Avatar from Video)."""
     chosen = dict(os.environ)
     choose_openmp_waiting(chosen)
-    return {k: chosen[k] for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT") if k in chosen}
+    return {k: chosen[k] for k in WAITING if k in chosen}
 
 
 @contextmanager

@@ -79,8 +79,11 @@ def main(argv=None) -> None:
     avatar = trainer.avatar
     kept_tables, old_tables = avatar.level_cache, CountBoundTables(avatar._build_level)
     fused = trainer.optimizer
-    plain = torch.optim.Adam(fused.param_groups, fused=False)
+    plain = torch.optim.Adam(fused.param_groups)
     plain.load_state_dict(fused.state_dict())
+    for group in plain.param_groups:  # the groups, and the state, bring fused=True with them
+        group["fused"] = None
+    assert all(g["fused"] for g in fused.param_groups)
     kept_pose = trainer._posed
 
     def switch(variant: str) -> None:

@@ -40,7 +40,7 @@ from functools import partial
 from pathlib import Path
 
 from archhead_addon.avatar.lod import resolution_for_lod
-from archhead_addon.threads import choose_openmp_waiting
+from archhead_addon.threads import WAITING, choose_openmp_waiting
 from archhead_addon.timing import restart_with_threads
 
 DEFAULT_DATA = Path("out/synth_track")  # scripts/synthetic_subject.py --frames 120 --size 256
@@ -110,9 +110,7 @@ def plain_step(trainer, library):
 
 def _waiting() -> str:
     """How OpenMP threads wait in this process (threads.choose_openmp_waiting's choice)."""
-    chosen = [
-        f"{k}={os.environ[k]}" for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT") if k in os.environ
-    ]
+    chosen = [f"{k}={os.environ[k]}" for k in WAITING if k in os.environ]
     return ", ".join(chosen) or "OpenMP's default"
 
 
