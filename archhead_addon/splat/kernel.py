@@ -54,7 +54,7 @@ class _Params(ctypes.Structure):
     ]
 
 
-_ABI_VERSION = 3
+_ABI_VERSION = 4
 _lib: ctypes.CDLL | None = None
 SIMD = {"auto": -1, "baseline": 0, "avx2": 1, "avx512": 2}  # AH_ISA_* in csrc/splat.h
 SIMD_ENV = "ARCHHEAD_SPLAT_SIMD"
@@ -130,6 +130,9 @@ def library() -> ctypes.CDLL:
     lib.ah_splat_isa_supported.restype = i32
     lib.ah_splat_set_ellipse_steps.argtypes = [i32]
     lib.ah_splat_set_ellipse_steps.restype = i32
+    i64p = ctypes.POINTER(ctypes.c_int64)
+    lib.ah_mesh_rasterize.argtypes = [i64, i64, f64, f64, i64p, i32, i32, i64p, f64, cp, i32]
+    lib.ah_mesh_rasterize.restype = ctypes.c_int
     _lib = lib
     set_simd(os.environ.get(SIMD_ENV, "auto"))
     return lib
@@ -252,6 +255,33 @@ def project(g: SplatFrame, settings: RasterSettings) -> Projected:
     if rc != 0:
         _raise(err)
     return out
+
+
+def rasterize_mesh(
+    xy: np.ndarray, z: np.ndarray, faces: np.ndarray, size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest of `faces` at each pixel centre of an image of `size` (H, W): its row in
+    `faces` (H,W) int64, -1 where none, and its perspective-correct barycentrics (H,W,3)
+    float64. `xy` (V,2) projected vertices in pixels, `z` (V,) their camera depths, every
+    face's vertices in front of the camera; ties go to the earlier face."""
+    height, width = size
+    xy = np.ascontiguousarray(xy, np.float64)
+    z = np.ascontiguousarray(z, np.float64)
+    faces = np.ascontiguousarray(faces, np.int64).reshape(-1, 3)
+    if xy.shape != (len(z), 2):
+        raise ValueError(f"xy: expected ({len(z)}, 2) for {len(z)} depths, got {xy.shape}")
+    face_at = np.empty((height, width), np.int64)
+    bary = np.empty((height, width, 3), np.float64)
+    f64p, i64p = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
+    err = ctypes.create_string_buffer(_ERR_LEN)
+    rc = library().ah_mesh_rasterize(
+        len(z), len(faces), xy.ctypes.data_as(f64p), z.ctypes.data_as(f64p),
+        faces.ctypes.data_as(i64p), width, height, face_at.ctypes.data_as(i64p),
+        bary.ctypes.data_as(f64p), err, _ERR_LEN,
+    )  # fmt: skip
+    if rc != 0:
+        _raise(err)
+    return face_at, bary
 
 
 _STATS = ("visible", "intersections", "project_ms", "bin_ms", "composite_ms", "bwd_composite_ms",

@@ -21,6 +21,7 @@
 
 #include "binning.hpp"
 #include "dispatch.hpp"
+#include "mesh_raster.hpp"
 #include "projection.hpp"
 #include "raster.hpp"
 
@@ -400,5 +401,27 @@ void ah_splat_stats(const void* ctx, int64_t* stats) {
 }
 
 void ah_splat_release(void* ctx) { release(static_cast<Context*>(ctx)); }
+
+int ah_mesh_rasterize(int64_t n_vertices, int64_t n_faces, const double* xy, const double* z,
+                      const int64_t* faces, int32_t width, int32_t height, int64_t* face_at,
+                      double* bary, char* err, int32_t err_len) {
+    if (width < 0 || height < 0 || n_faces < 0) {
+        set_error(err, err_len, "negative image size or face count");
+        return -1;
+    }
+    for (int64_t i = 0; i < 3 * n_faces; ++i) {
+        if (faces[i] < 0 || faces[i] >= n_vertices) {
+            set_error(err, err_len, "a face's vertex index is out of range");
+            return -1;
+        }
+    }
+    try {
+        ah::rasterize_mesh(n_faces, xy, z, faces, width, height, face_at, bary);
+    } catch (const std::exception& e) {  // the z-buffer's allocation
+        set_error(err, err_len, e.what());
+        return -1;
+    }
+    return 0;
+}
 
 }  // extern "C"

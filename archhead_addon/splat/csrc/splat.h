@@ -21,7 +21,7 @@
 extern "C" {
 #endif
 
-#define AH_SPLAT_ABI_VERSION 3
+#define AH_SPLAT_ABI_VERSION 4
 #define AH_LOG_SCALE_MIN -23.0f  // scale 1e-10
 #define AH_LOG_SCALE_MAX 11.5f   // scale ~1e5
 
@@ -88,6 +88,16 @@ int32_t ah_splat_isa_supported(int32_t isa);
 // tests and benchmarks). Applies to the following forward passes (and their backward
 // passes); returns the previous setting. Not to be called while a render runs.
 int32_t ah_splat_set_ellipse_steps(int32_t on);
+
+// Not a splat: the nearest face of a projected triangle mesh at each pixel centre (pixel (i, j)
+// centred at (j + 0.5, i + 0.5)), with a z-buffer; the masks' rasterizer (parts_mask.py).
+// xy (V,2) pixels and z (V) camera depths, float64; faces (F,3) int64 vertex indices, each
+// face's vertices in front of the camera; ties go to the earlier face. Writes face_at (H,W)
+// int64 (the face's row in `faces`, -1 where none) and bary (H,W,3) float64, the
+// perspective-correct barycentrics (0 where none). Returns 0, or -1 with err set.
+int ah_mesh_rasterize(int64_t n_vertices, int64_t n_faces, const double* xy, const double* z,
+                      const int64_t* faces, int32_t width, int32_t height, int64_t* face_at,
+                      double* bary, char* err, int32_t err_len);
 
 int32_t ah_splat_abi_version(void);
 
