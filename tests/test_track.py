@@ -24,6 +24,7 @@ from archhead_addon.sequences import read_sequence
 from archhead_addon.track.accuracy import code_errors, vertex_errors
 from archhead_addon.track.detect import hand_cover
 from archhead_addon.track.embedding import landmark_embedding
+from archhead_addon.track.photometric import FacePoints
 from archhead_addon.track.pipeline import TrackOptions, track
 from archhead_addon.track.real_subject import REAL_VIDEO, fetch_media
 from archhead_addon.train.__main__ import main as train_main
@@ -82,6 +83,29 @@ def test_vertex_subset_poses_its_vertices_exactly(model):
     np.testing.assert_allclose(
         forward(vertex_subset(model, ids), **codes)[:, :200], full, atol=1e-12
     )
+
+
+def test_face_points_are_the_vertices_then_the_triangle_centres(model):
+    """The photometric step's points on a posed face: each region vertex, then each region
+    triangle's centre, with unit normals that follow the surface (area-weighted vertex
+    normals, averaged over a triangle's corners)."""
+    import torch
+
+    points = FacePoints(model, landmark_embedding(model))
+    verts = torch.from_numpy(forward(model, jaw=np.array([[0.2, 0, 0]]))[:, points.ids]).float()
+    at, normals = points.place(verts)
+    faces = points.faces.numpy()
+    v = verts[0].numpy()
+    assert at.shape == normals.shape == (1, len(points), 3)
+    np.testing.assert_array_equal(at[0, : len(v)].numpy(), v)
+    np.testing.assert_allclose(at[0, len(v) :].numpy(), v[faces].mean(1), atol=1e-7)
+    face_n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    vertex_n = np.zeros_like(v)
+    np.add.at(vertex_n, faces, face_n[:, None])
+    centre_n = vertex_n[faces].sum(1)
+    want = np.concatenate([vertex_n, centre_n])
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    np.testing.assert_allclose(normals[0].numpy(), want, atol=1e-5)
 
 
 def test_embedding_places_landmarks_on_the_builtin_head(model, tmp_path):

@@ -269,16 +269,21 @@ class ClipFit:
         self, keys, steps: int, extra=None, progress=None, done: int = 0, total=None, more=()
     ):
         """Adam with a cosine schedule over `keys` and the (tensor, learning rate) pairs
-        `more`; `extra(step)` adds terms to the energy."""
+        `more`; `extra(step)` adds terms to the energy. With no keys the fit stays put and
+        its own energy is a constant, taken once."""
         import torch
 
         keys = [k for k in keys if k in self.p and (k != "log_focal" or self.opt.focal is None)]
         groups = [{"params": [self.p[k]], "lr": LEARNING_RATES[k]} for k in keys]
         adam = torch.optim.Adam(groups + [{"params": [t], "lr": lr} for t, lr in more])
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, steps, eta_min=0.0)
+        fixed = None
+        if not keys:
+            with torch.no_grad():
+                fixed = self.energy()
         for step in range(steps):
             adam.zero_grad()
-            e, data = self.energy()
+            e, data = self.energy() if fixed is None else fixed
             if extra is not None:
                 e = e + extra(step)
             e.backward()

@@ -61,7 +61,7 @@ class PhotometricReport:
 
 class FacePoints:
     """Points on a model's face region (without the eyeballs): its vertices and the
-    centres of its triangles, as barycentric combinations of the region's vertices."""
+    centres of its triangles."""
 
     def __init__(self, model: FlameModel, emb: LandmarkEmbedding):
         import torch
@@ -73,18 +73,14 @@ class FacePoints:
         self.layer = FlameLayer(vertex_subset(model, self.ids))
         local = np.full(model.n_verts, -1)
         local[self.ids] = np.arange(len(self.ids))
-        faces = local[model.faces[region[model.faces].all(axis=1)]]
-        own = np.arange(len(self.ids))[:, None]
-        self.corners = torch.from_numpy(np.concatenate([np.repeat(own, 3, 1), faces]))
-        bary = np.concatenate([np.tile([1.0, 0, 0], (len(own), 1)), np.full(faces.shape, 1 / 3)])
-        self.bary = torch.from_numpy(bary.astype(np.float32))
-        self.faces = torch.from_numpy(faces)
+        self.faces = torch.from_numpy(local[model.faces[region[model.faces].all(axis=1)]])
 
     def __len__(self) -> int:
-        return len(self.corners)
+        return len(self.ids) + len(self.faces)
 
     def place(self, verts):
-        """Points (B,P,3) and unit normals (B,P,3) on posed region vertices (B,n,3)."""
+        """Points (B,P,3) and unit normals (B,P,3) on posed region vertices (B,n,3): the
+        vertices, then the triangles' centres."""
         import torch
 
         a, b, c = (verts[:, self.faces[:, k]] for k in range(3))
@@ -92,12 +88,9 @@ class FacePoints:
         n = torch.zeros_like(verts)
         for k in range(3):
             n.index_add_(1, self.faces[:, k], face_n)
-
-        def mix(x):
-            return (x[:, self.corners] * self.bary[None, :, :, None]).sum(2)
-
-        normals = mix(n)
-        return mix(verts), normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        normals = torch.cat([n, sum(n[:, self.faces[:, k]] for k in range(3))], dim=1)
+        points = torch.cat([verts, (a + b + c) / 3], dim=1)
+        return points, normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def refine_photometric(
@@ -139,8 +132,9 @@ def refine_photometric(
         weight = ((facing - lo) / (hi - lo)).clamp(0, 1) * (seen[..., 3].detach() > 0.5)
         return seen[..., :3], weight, normals
 
-    with torch.no_grad():
-        colour0, weight0, _ = observe()
+    with torch.no_grad():  # the fit as the landmarks left it, which the colour steps keep
+        landmark_fit = observe()
+        colour0, weight0, _ = landmark_fit
         albedo0 = (colour0 * weight0[..., None]).sum(0) / weight0.sum(0)[:, None].clamp_min(1e-6)
     colour = {
         "albedo": albedo0.contiguous(),
@@ -150,8 +144,8 @@ def refine_photometric(
     for value in colour.values():
         value.requires_grad_(True)
 
-    def frame_errors():
-        seen, weight, normals = observe()
+    def frame_errors(observed=None):
+        seen, weight, normals = observe() if observed is None else observed
         shade = 1.0 + normals @ colour["light"]
         model_colour = colour["albedo"][None] * colour["gain"][:, None] * shade[..., None]
         rho = ((seen - model_colour).square() + opt.delta**2).sqrt() - opt.delta
@@ -160,13 +154,16 @@ def refine_photometric(
     def term(step):
         return opt.weight * frame_errors().mean()
 
+    def colour_term(step):  # the fit does not move: its points are observed once
+        return opt.weight * frame_errors(landmark_fit).mean()
+
     def median_error():
         with torch.no_grad():
             return float(frame_errors().median())
 
     more = [(v, 0.01) for v in colour.values()]
     total = opt.colour_steps + opt.steps
-    fit.optimise((), opt.colour_steps, term, progress, 0, total, more=more)
+    fit.optimise((), opt.colour_steps, colour_term, progress, 0, total, more=more)
     before = median_error()
     codes = ("shape", "expr", "jaw", "eyes", "rotation", "translation", "static_offset")
     fit.optimise(codes, opt.steps, term, progress, opt.colour_steps, total, more=more)
