@@ -120,6 +120,18 @@ def test_step_changes_times_every_variant_against_the_step_before(
     assert all(float(r[3]) > 0 for r in rows)
 
 
+def test_tracking_changes_times_both_forms_of_each_part(repo_root, tiny_subject):
+    out = _benchmark(
+        repo_root, "tracking_changes.py", "--data", tiny_subject, "--frames", 2, "--repeat", 1
+    )
+    rows = [line.split("|")[1:5] for line in out.splitlines() if line.startswith("| masks")]
+    rows += [line.split("|")[1:5] for line in out.splitlines() if line.startswith("| refine")]
+    assert [(r[0].strip(), r[1].strip()) for r in rows] == [
+        (part, version) for part in ("masks", "refine points") for version in ("before", "after")
+    ]
+    assert all(float(r[2]) > 0 for r in rows) and rows[0][3].strip() == "1.00x"
+
+
 def test_step_times_stamps_a_run_and_prices_its_checkpoints(repo_root, tiny_subject, tmp_path):
     from training_subject import write_config
 
