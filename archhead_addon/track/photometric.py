@@ -157,14 +157,14 @@ def refine_photometric(
     def colour_term(step):  # the fit does not move: its points are observed once
         return opt.weight * frame_errors(landmark_fit).mean()
 
-    def median_error():
+    def median_error(observed=None):
         with torch.no_grad():
-            return float(frame_errors().median())
+            return float(frame_errors(observed).median())
 
     more = [(v, 0.01) for v in colour.values()]
     total = opt.colour_steps + opt.steps
     fit.optimise((), opt.colour_steps, colour_term, progress, 0, total, more=more)
-    before = median_error()
+    before = median_error(landmark_fit)
     codes = ("shape", "expr", "jaw", "eyes", "rotation", "translation", "static_offset")
     fit.optimise(codes, opt.steps, term, progress, opt.colour_steps, total, more=more)
     return PhotometricReport(before, median_error(), n_frames, len(points), watch.seconds)
