@@ -4,7 +4,7 @@ one process, on a tracked folder's own codes:
     python benchmarks/tracking_changes.py --data out/real_hn [--frames 40] [--repeat 3]
 
 - "masks": a frame's head-and-neck region at the folder's size, the mesh rasterized by the
-  numpy z-buffer ("before", `tests/mesh_raster_reference.py`) and by the splat kernel's
+  numpy z-buffer ("before", `splat/mesh_reference.py`) and by the splat kernel's
   library ("after", `kernel.rasterize_mesh`); the regions must be identical.
 - "refine points": one pass of the photometric step's points and normals over the clip's
   frames, forward and backward, as `FacePoints.place` placed them before (every point a
@@ -19,13 +19,11 @@ Prints milliseconds (the best of `--repeat`) and the ratios.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
 PER_FRAME = ("expr", "jaw", "neck", "eyes", "rotation", "translation")
 
 
@@ -67,13 +65,12 @@ def main(argv=None) -> None:
     p.add_argument("--frames", type=int, default=40, help="frames whose masks are timed")
     p.add_argument("--repeat", type=int, default=3, help="timings of each; the best is kept")
     args = p.parse_args(argv)
-    sys.path.insert(0, str(REPO / "tests"))
     import torch
-    from mesh_raster_reference import rasterize as numpy_rasterize
 
     import archhead_addon.train.parts_mask as parts_mask
     from archhead_addon.flame import load_model
     from archhead_addon.flame.lbs import forward
+    from archhead_addon.splat.mesh_reference import rasterize as numpy_rasterize
     from archhead_addon.track.embedding import landmark_embedding
     from archhead_addon.track.head_mask import head_and_neck_masks
     from archhead_addon.track.photometric import FacePoints

@@ -6,12 +6,12 @@ import dataclasses
 
 import numpy as np
 import pytest
-from mesh_raster_reference import rasterize as reference
 
 from archhead_addon.flame import load_model
 from archhead_addon.flame.lbs import forward
 from archhead_addon.sequences.demo import demo_sequence
 from archhead_addon.splat.kernel import rasterize_mesh
+from archhead_addon.splat.mesh_reference import rasterize as reference
 from archhead_addon.train.parts_mask import rasterize
 
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")

@@ -1,12 +1,15 @@
-"""The masks' rasterizer in numpy, as it was before the splat kernel's library took it over:
-the reference that `archhead_addon.train.parts_mask.rasterize` must match bit for bit
-(tests/test_mesh_raster.py). Vectorised over faces and the pixels of their bounding boxes."""
+"""The masks' rasterizer in numpy, as it was before the kernel's library took it over
+(`kernel.rasterize_mesh`), for tests and the benchmark only: the reference that
+`train.parts_mask.rasterize` must match bit for bit (tests/test_mesh_raster.py,
+benchmarks/tracking_changes.py). Vectorised over faces and the pixels of their bounding
+boxes.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from archhead_addon.train.parts_mask import NEAR
+from ..train.parts_mask import NEAR
 
 _MAX_PAIRS = 1 << 22  # (face, pixel) candidates per batch, bounds the memory (~200 MB)
 
