@@ -118,13 +118,16 @@ def time_preset(data: Path, preset: str, steps: int) -> dict:
     from archhead_addon.train.config import TrainConfig
 
     config = json.loads(TrainConfig.load(preset).to_json())
-    config.update(stage1_steps=steps, stage2_steps=steps, checkpoint_every=10 * steps)
+    for k in range(1, 5):  # each stage the preset has, `steps` long
+        if k < 3 or config[f"stage{k}_steps"]:
+            config[f"stage{k}_steps"] = steps
+    config.update(checkpoint_every=10 * steps)
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "config.json"
         path.write_text(json.dumps(config))
         command = _train_command(data, Path(folder) / "run", path) + ["--progress-json"]
         done = subprocess.run(command, capture_output=True, text=True, check=True)
-    marks = {1: [], 2: []}  # (step, elapsed seconds) of each stage's step events
+    marks = {k: [] for k in range(1, 5)}  # (step, elapsed seconds) of each stage's steps
     for line in done.stdout.splitlines():
         event = json.loads(line) if line.startswith("{") else {}
         if event.get("event") == "step":
@@ -265,7 +268,8 @@ def main(argv=None) -> int:
         t = timed[preset] = time_preset(args.data, preset, args.steps)
         s1, s2 = t.get("stage1_ms", 0), t.get("stage2_ms", 0)
         config = TrainConfig.load(preset)
-        whole = (config.stage1_steps * s1 + config.stage2_steps * s2) / 60e3
+        rates = [t.get(f"stage{k}_ms", 0) for k in range(1, 5)]
+        whole = sum(n * ms for n, ms in zip(config.stage_steps, rates, strict=True)) / 60e3
         emit(f"| {preset} | {s1:.1f} | {s2:.1f} | {whole:.1f} min |")
     p = profile_stage2(args.data, presets[-1])
     emit(

@@ -30,7 +30,9 @@ LODS = (0.0, 0.5, 1.0)
 
 def configs(base: dict, steps: tuple[int, int], avatar: dict) -> dict[str, dict]:
     """{run name: config}: "continuous" and "S<n>" per dedicated count."""
+    # the method's two stages alone (stages 3 and 4 train the continuous run's feature field)
     base = {**base, "stage1_steps": steps[0], "stage2_steps": steps[1]}
+    base |= {"stage3_steps": 0, "stage4_steps": 0}
     base["avatar"] = {**base.get("avatar", {}), **avatar}
     s_max, s_min = base["avatar"].get("s_max", 256), base["avatar"].get("s_min", 64)
     out = {"continuous": base}

@@ -137,10 +137,10 @@ def report(summary: dict, config=None):
         f"\na checkpoint adds {summary['checkpoint_ms']:.0f} ms "
         f"(the mean over {summary['checkpoints']} checkpoints)"
     )
-    if config is not None and len(summary["stages"]) == 2:
-        stage_steps = (config.stage1_steps, config.stage2_steps)
-        steps_s = sum(n * summary["stages"][i + 1]["mean_ms"] for i, n in enumerate(stage_steps))
-        saves = sum(stage_steps) // config.checkpoint_every
+    stage_steps = {} if config is None else dict(enumerate(config.stage_steps, start=1))
+    if stage_steps and all(k in summary["stages"] for k, n in stage_steps.items() if n):
+        steps_s = sum(n * summary["stages"][k]["mean_ms"] for k, n in stage_steps.items() if n)
+        saves = config.total_steps // config.checkpoint_every
         whole = (steps_s + saves * summary["checkpoint_ms"]) / 60e3
         print(
             f"the whole run at these rates: {whole:.1f} min ({steps_s / 60e3:.1f} in steps, "

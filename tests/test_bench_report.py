@@ -32,6 +32,11 @@ def test_variant_config_keeps_the_budget_and_replaces_the_levels():
         assert config.avatar_config(1).levels == (
             base.avatar_config(1).levels if levels is None else tuple(levels)
         )
+    staged = TrainConfig.from_dict({**TINY_CONFIG, "stage3_steps": 4, "stage4_steps": 4})
+    for levels in VARIANTS.values():  # 24 : 8 : 4 : 4 of 40
+        config = TrainConfig.from_dict(variant_config(staged, levels, 20))
+        later = (0, 0) if levels == [] else (2, 2)  # no feature field for stages 3 and 4
+        assert config.stage_steps == (12, 8 - sum(later), *later)
 
 
 def test_report_has_a_finite_row_per_lod(tiny_subject, tmp_path, capsys):

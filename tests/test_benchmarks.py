@@ -132,6 +132,32 @@ def test_tracking_changes_times_both_forms_of_each_part(repo_root, tiny_subject)
     assert all(float(r[2]) > 0 for r in rows) and rows[0][3].strip() == "1.00x"
 
 
+def test_later_stages_continue_a_finished_run_and_score_each_variant(
+    repo_root, tiny_subject, tmp_path
+):
+    from training_subject import write_config
+
+    from archhead_addon.train.__main__ import main as train
+
+    run, config = tmp_path / "run", write_config(tmp_path / "tiny.json")
+    assert train(["--data", str(tiny_subject), "--out", str(run), "--config", str(config)]) == 0
+    staged = write_config(tmp_path / "staged.json", stage3_steps=2, stage4_steps=3)
+    out = _benchmark(
+        repo_root, "later_stages.py", "--run", run, "--data", tiny_subject, "--out",
+        tmp_path / "later", "--steps", 2, "--preset", staged,
+    )  # fmt: skip
+    rows = [line.split("|")[1:-1] for line in out.splitlines()[2:]]
+    assert [r[0].strip() for r in rows] == [
+        "run", "stage2", "features", "sparsest", "sparsest x2", "64 and 32", "preset"
+    ]  # fmt: skip
+    psnr = {r[0].strip(): r[1].strip() for r in rows}
+    assert all(re.fullmatch(r"[\d.]+ / [\d.]+ / [\d.]+", v) for v in psnr.values())
+    assert len(set(psnr.values())) > 1  # the variants trained
+    from archhead_addon.train.loop import load_state
+
+    assert load_state(tmp_path / "later" / "preset" / "train_state.pt")["step"] == 32 + 5
+
+
 def test_step_times_stamps_a_run_and_prices_its_checkpoints(repo_root, tiny_subject, tmp_path):
     from training_subject import write_config
 

@@ -123,6 +123,50 @@ def test_stage_two_freezes_the_mapping_network(dataset, model, tmp_path):
     )
 
 
+def test_stages_three_and_four_train_the_feature_field_alone(dataset, model, tmp_path):
+    """Stage 3: every feature level, at stage 2's draws; stage 4: the sparsest level alone,
+    near LOD 1; both at the rate stage 2 ended on, the decoder, the mapping network and the
+    codes' refinement fixed."""
+    t = trainer(
+        dataset, model, tmp_path, stage1_steps=1, stage2_steps=1, stage3_steps=2,
+        stage4_steps=3, lod1_band=0.1, lods_per_step=1,
+        lr={**TINY_CONFIG["lr"], "codes": CODES_LR},
+    )  # fmt: skip
+    cfg = t.config
+    assert cfg.total_steps == 7 and [cfg.stage(s) for s in range(8)] == [1, 2, 3, 3, 4, 4, 4, 4]
+    assert t.sparsest == "8"
+    final = TINY_CONFIG.get("lr_final_ratio", 0.1)
+    assert all(t.learning_rate_factor(s) == pytest.approx(final) for s in (2, 3, 6))
+    near_1 = [t.lods(s) for s in range(4, 7)]
+    assert all(len(x) == 1 and 0.9 <= x[0] <= 1.0 for x in near_1)
+    assert len(set(map(tuple, near_1))) == 3
+    assert not all(0.9 <= t.lods(s)[0] for s in range(2, 4))  # stage 2's draw: anywhere
+    t.train_step()
+    t.train_step()
+    parts = {"mapping": t.avatar.mapping, "decoder": t.avatar.decoder, "codes": t.refinement}
+    parts = {k: list(m.parameters()) for k, m in parts.items()}
+    parts |= {f"features {s}": [level] for s, level in t.avatar.features.items()}
+
+    def changed_by(steps: int) -> set[str]:
+        before = {k: [p.detach().clone() for p in ps] for k, ps in parts.items()}
+        reports = [t.train_step() for _ in range(steps)]
+        assert len({r.stage for r in reports}) == 1
+        return {
+            k for k, ps in parts.items()
+            if not all(torch.equal(a, b) for a, b in zip(before[k], ps, strict=True))
+        }  # fmt: skip
+
+    assert t.eta() > 0
+    assert changed_by(2) == {"features 32", "features 16", "features 8"}  # stage 3
+    assert changed_by(3) == {"features 8"}  # stage 4
+    assert t.eta() == 0
+    for key in ("stage3_steps", "stage4_steps"):
+        with pytest.raises(InputError, match=key):
+            TrainConfig.from_dict({key: 10, "avatar": {"levels": []}})
+        with pytest.raises(InputError, match=key):
+            TrainConfig.from_dict({key: -1})
+
+
 def test_schedule_lods_frames_and_learning_rate(dataset, model, tmp_path):
     t = trainer(dataset, model, tmp_path, stage1_steps=4, stage2_steps=100, lods_per_step=5)
     assert t.lods(3) == [0.0]

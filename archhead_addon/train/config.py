@@ -32,11 +32,14 @@ PRESETS = ("cpu", "cpu_short", "gpu_paper", "demo")
 # Where every training starts unless told otherwise: the command line and Blender's Train
 # operator alike (the dataclass defaults below are not a preset of their own).
 DEFAULT_PRESET = "cpu"
+STAGE_STEPS = ("stage1_steps", "stage2_steps", "stage3_steps", "stage4_steps")
 WHOLE_NUMBERS = (
     "resolution",
     "frames",
     "stage1_steps",
     "stage2_steps",
+    "stage3_steps",
+    "stage4_steps",
     "lods_per_step",
     "lpips_every",
     "checkpoint_every",
@@ -76,6 +79,12 @@ class TrainConfig:
     resolution: int = 256  # training images are resized to this longer side (pixels)
     stage1_steps: int = 1000  # LOD 0, everything trains
     stage2_steps: int = 500  # several LODs per step, mapping network frozen
+    # Not the paper's: with the decoder settled, the feature field alone, levels drawn as in
+    # stage 2 (stage 3); then its sparsest level alone, near LOD 1 as `lod1_band` draws it
+    # (stage 4), the level LOD 1 draws almost all its features from (docs/quality.md,
+    # "Stages 3 and 4").
+    stage3_steps: int = 0
+    stage4_steps: int = 0
     lods_per_step: int = 5
     lr: LearningRates = field(default_factory=LearningRates)
     lr_final_ratio: float = 0.1  # the rates decay exponentially over the run to this fraction
@@ -112,9 +121,13 @@ class TrainConfig:
             if not _is_whole(value):
                 raise InputError(None, key, f"must be a finite whole number, got {value!r:.60}")
             object.__setattr__(self, key, int(value))  # 1e3 in JSON reads as 1000.0
-        for key in ("stage1_steps", "stage2_steps", "seed", "threads"):
+        for key in (*STAGE_STEPS, "seed", "threads"):
             _require(getattr(self, key) >= 0, key, f"must be >= 0, got {getattr(self, key)}")
-        _require(self.total_steps > 0, "stage1_steps", "stage1_steps + stage2_steps must be > 0")
+        _require(
+            self.stage1_steps + self.stage2_steps > 0,
+            "stage1_steps",
+            "stage1_steps + stage2_steps must be > 0",
+        )
         _require(
             self.resolution >= 32,
             "resolution",
@@ -166,17 +179,33 @@ class TrainConfig:
             f"must be one of {HOLDOUTS}, got {self.holdout!r}",
         )
         try:
-            self.avatar_config(n_expr=1)  # reject unknown or invalid avatar fields now
+            avatar = self.avatar_config(n_expr=1)  # reject unknown or invalid avatar fields now
         except ValueError as exc:
             raise InputError(None, "avatar", str(exc)) from exc
+        for key in STAGE_STEPS[2:]:
+            _require(
+                not getattr(self, key) or bool(avatar.levels),
+                key,
+                "needs a feature field to train (avatar.levels is empty)",
+            )
 
     @property
     def total_steps(self) -> int:
-        return self.stage1_steps + self.stage2_steps
+        return sum(self.stage_steps)
+
+    @property
+    def stage_steps(self) -> tuple[int, ...]:
+        """The steps of stages 1 to 4."""
+        return tuple(getattr(self, key) for key in STAGE_STEPS)
 
     def stage(self, step: int) -> int:
-        """1 or 2 for a step counted from 0."""
-        return 1 if step < self.stage1_steps else 2
+        """The stage (1 to 4) of a step counted from 0; past the end, the last with steps."""
+        end, last = 0, 1
+        for stage, steps in enumerate(self.stage_steps, start=1):
+            last, end = (stage if steps else last), end + steps
+            if step < end:
+                return stage
+        return last
 
     def avatar_config(self, n_expr: int) -> AvatarConfig:
         known = {f.name for f in fields(AvatarConfig)}

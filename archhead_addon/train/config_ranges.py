@@ -14,6 +14,8 @@ COUNTS = {
     "resolution": (32, 8192),
     "stage1_steps": (0, 10_000_000),
     "stage2_steps": (0, 10_000_000),
+    "stage3_steps": (0, 10_000_000),
+    "stage4_steps": (0, 10_000_000),
     "lods_per_step": (1, 64),
     "lpips_every": (1, 1_000_000),
     "checkpoint_every": (1, 10_000_000),

@@ -12,10 +12,15 @@ stratified levels give a curve that falls with l and a higher mean over the 21 l
 The learning rates decay exponentially within each stage, from their start to
 `lr_final_ratio` of it: stage 2 starts at the full rates again, because its new task, the
 sparse levels, needs them (at the decayed rates of one run-long schedule they barely moved).
+Stages 3 and 4 (not the paper's) train the feature field alone, at the rate stage 2 ended
+on, against the decoder stage 2 settled: stage 3 every level, at levels drawn as stage 2
+draws them; stage 4 the sparsest level, at one level near LOD 1 a step (as `lod1_band`
+draws it), the level LOD 1 draws almost all its features from (docs/quality.md, "Stages 3
+and 4").
 
 Randomness is a function of (seed, step) alone: the frame order (a permutation per epoch)
-and the stage-2 levels. The step is therefore the whole random state, and a resumed run takes
-the same steps as one that was never stopped.
+and the levels of stages 2 and 3. The step is therefore the whole random state, and a
+resumed run takes the same steps as one that was never stopped.
 
 Files in the output folder, each replaced atomically:
   avatar.npz       the avatar checkpoint (numpy-readable; avatar/checkpoint_format.py)
@@ -168,7 +173,9 @@ class Trainer:
         self.step = 0  # steps done
         self.elapsed = 0.0  # training seconds over every session of the run
         self.backend = select_backend("auto", device)
-        self._rate = {1: None, 2: None}  # smoothed seconds per step, by stage
+        self._rate = dict.fromkeys((1, 2, 3, 4))  # smoothed seconds per step, by stage
+        # stage 4's level: the one LOD 1 blends most from (the levels are distinct sizes)
+        self.sparsest = str(min(avatar.config.levels)) if avatar.config.levels else None
 
     @classmethod
     def create(
@@ -237,15 +244,22 @@ class Trainer:
         return int(np.random.default_rng([self.config.seed, epoch]).permutation(n)[k])
 
     def lods(self, step: int) -> list[float]:
-        if self.config.stage(step) == 1:
+        stage = self.config.stage(step)
+        if stage == 1:
             return [0.0]
         cfg = self.config
         rng = np.random.default_rng([cfg.seed, 1 << 20, step])
+        if stage == 4:
+            return [self._near_lod1(rng)]
         u = rng.random(cfg.lods_per_step)
         end = None
         if cfg.lod1_share and rng.random() < cfg.lod1_share:
-            end = float(1 - cfg.lod1_band * rng.random() ** 2) if cfg.lod1_band else 1.0
+            end = self._near_lod1(rng)
         return stage2_lods(cfg.lods_per_step, u, end)
+
+    def _near_lod1(self, rng) -> float:
+        band = self.config.lod1_band
+        return float(1 - band * rng.random() ** 2) if band else 1.0
 
     def lpips_weights(self, step: int, renders: int) -> list[float]:
         """λ_lpips for each render of a step: on every `lpips_every`-th step, weighted by that
@@ -261,10 +275,14 @@ class Trainer:
         return [weight * renders if k == turn else 0.0 for k in range(renders)]
 
     def learning_rate_factor(self, step: int) -> float:
-        """1 at the start of each stage, decaying exponentially to lr_final_ratio at its end."""
+        """1 at the start of stages 1 and 2, decaying exponentially to lr_final_ratio at
+        their end; stages 3 and 4 keep the rate stage 2 ended on."""
         cfg = self.config
+        stage = cfg.stage(step)
+        if stage > 2:
+            return cfg.lr_final_ratio
         start, length = (
-            (0, cfg.stage1_steps) if cfg.stage(step) == 1 else (cfg.stage1_steps, cfg.stage2_steps)
+            (0, cfg.stage1_steps) if stage == 1 else (cfg.stage1_steps, cfg.stage2_steps)
         )
         return cfg.lr_final_ratio ** ((step - start) / length)
 
@@ -310,7 +328,7 @@ class Trainer:
     def train_step(self) -> StepReport:
         step, cfg = self.step, self.config
         stage = cfg.stage(step)
-        self.avatar.mapping.requires_grad_(stage == 1)
+        self._train_parts(stage)
         for group in self.optimizer.param_groups:
             rate = getattr(cfg.lr, group["name"]) * group.get("scale", 1.0)
             group["lr"] = rate * self.learning_rate_factor(step)
@@ -352,15 +370,30 @@ class Trainer:
             self.elapsed,
         )
 
+    def _train_parts(self, stage: int) -> None:
+        """What a stage trains: everything in stage 1; the mapping network is frozen from
+        stage 2, the decoder and the codes' refinement from stage 3; stage 4 trains the
+        sparsest feature level alone. A frozen part has no gradient, which Adam skips."""
+        self.avatar.mapping.requires_grad_(stage == 1)
+        self.avatar.decoder.requires_grad_(stage < 3)
+        for size, level in self.avatar.features.items():
+            level.requires_grad_(stage < 4 or size == self.sparsest)
+        if self.refinement is not None:
+            self.refinement.requires_grad_(stage < 3)
+
     def eta(self) -> float:
         cfg = self.config
-        left1 = max(cfg.stage1_steps - self.step, 0)
-        left2 = cfg.total_steps - self.step - left1
-        s1, s2 = self._rate[1], self._rate[2]
-        if s2 is None and s1 is not None:
+        rates = dict(self._rate)
+        if rates[2] is None and rates[1] is not None:
             a = self.avatar.config
-            s2 = s1 * stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step)
-        return left1 * (s1 or 0.0) + left2 * (s2 or 0.0)
+            rates[2] = rates[1] * stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step)
+        seconds, start = 0.0, 0
+        for stage, steps in enumerate(cfg.stage_steps, start=1):
+            left = max(start + steps - max(start, self.step), 0)
+            start += steps
+            # a later stage's step costs less than a stage-2 one: its rate errs long
+            seconds += left * (rates[stage] or rates[2] or 0.0)
+        return seconds
 
     # -- files ----------------------------------------------------------------------------
 

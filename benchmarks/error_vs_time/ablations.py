@@ -27,12 +27,18 @@ VARIANTS = {
 
 def variant_config(base: TrainConfig, levels: list[int] | None, steps: int) -> dict:
     """`base` with the feature levels replaced (None keeps them) and `steps` split between
-    the two stages in the base's proportion."""
+    the stages in the base's proportion."""
     config = asdict(base)
     if levels is not None:
         config["avatar"] = {**config["avatar"], "levels": levels}
     stage1 = math.ceil(steps * base.stage1_steps / base.total_steps)
-    config["stage1_steps"], config["stage2_steps"] = stage1, steps - stage1
+    # stages 3 and 4 train the feature field: none without one
+    later = [
+        0 if levels == [] else math.floor(steps * n / base.total_steps)
+        for n in base.stage_steps[2:]
+    ]
+    config["stage1_steps"], config["stage3_steps"], config["stage4_steps"] = stage1, *later
+    config["stage2_steps"] = steps - stage1 - sum(later)
     config["checkpoint_every"] = max(steps, 1)
     return config
 
