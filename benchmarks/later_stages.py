@@ -7,29 +7,34 @@ frames.
 
 RUN: a finished run without stages 3 and 4 (a run of the `cpu` preset before them, such as
 the README's one command's `run` folder of 2026-11-28); DATA: its tracked folder. Each
-variant starts from RUN's last checkpoint in a folder of its own under DIR, and is scored by
-`evaluate --split test --lods 0,0.5,1` (a variant whose scores are there is not run again):
+variant continues RUN's last checkpoint (or another variant's) in a folder of its own under
+DIR and is scored by `evaluate --split test --lods LODS` (a variant whose scores are there
+is not run again):
 
 - "run": RUN itself;
 - "stage2": `--steps` more whole stage-2 steps (decoder and features) at the rates stage 2
   ended on, from a new Adam;
 - "features": every feature level alone, at stage 2's draws, from a new Adam at the feature
   rate stage 2 ended on;
-- "sparsest", "sparsest x2": the sparsest level alone, near LOD 1 (the run's `lod1_band`),
-  for `--steps` and twice as many;
+- "sparsest", "sparsest x2": the sparsest level alone, near LOD 1 as the run's band draws
+  it (1 - `lod1_band` v²), for `--steps` and twice as many;
 - "64 and 32": the two sparsest levels, near LOD 1;
+- "features, uniform 0.9" and "features, uniform 0.8": "features", then twice `--steps` of
+  the sparsest level alone at levels uniform in [0.9, 1] and [0.8, 1];
 - "preset": the trainer resumed with the `cpu` preset's `stage3_steps` and `stage4_steps`
   (or `--preset`'s; Adam's moments carried on): the steps a run of the preset takes after
   its stage 2.
 
 The fresh-Adam variants draw their frames and levels from one seeded generator, so a rerun
-takes the same steps. Prints the table and each variant's seconds of steps.
+takes the same steps. Prints the table (with l = 0.9 / 0.95 when LODS has them) and each
+variant's seconds of steps.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import re
 import shutil
 import subprocess
 import sys
@@ -37,7 +42,18 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-VARIANTS = ("run", "stage2", "features", "sparsest", "sparsest x2", "64 and 32", "preset")
+# name: (the variant it continues, what trains, times --steps, its levels); "band": the
+# run's draw near LOD 1, a number w: uniform in [1 - w, 1]
+FRESH_ADAM = {
+    "stage2": ("run", "stage2", 1, "stage 2"),
+    "features": ("run", "features", 1, "stage 2"),
+    "sparsest": ("run", "sparsest", 1, "band"),
+    "sparsest x2": ("run", "sparsest", 2, "band"),
+    "64 and 32": ("run", "64 and 32", 1, "band"),
+    "features, uniform 0.9": ("features", "sparsest", 2, 0.1),
+    "features, uniform 0.8": ("features", "sparsest", 2, 0.2),
+}
+VARIANTS = ("run", *FRESH_ADAM, "preset")
 SEED = 7  # the fresh-Adam variants' frames and levels
 
 
@@ -49,12 +65,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--variants", default=",".join(VARIANTS), help="comma list of VARIANTS")
     p.add_argument("--steps", type=int, default=1500, help="steps of the fresh-Adam variants")
     p.add_argument("--preset", default="cpu", help="config whose stages 3 and 4 'preset' takes")
+    p.add_argument("--lods", default="0,0.5,1", help="levels to score (0, 0.5 and 1 at least)")
     args = p.parse_args(argv)
     args.variants = args.variants.split(",")
     unknown = set(args.variants) - set(VARIANTS)
     if unknown:
         p.error(f"unknown variants {sorted(unknown)}; known: {', '.join(VARIANTS)}")
     return args
+
+
+def folder_of(out: Path, variant: str) -> Path:
+    return out / re.sub(r"[^\w.]+", "_", variant)
 
 
 def resumed(run: Path, data: Path, out: Path, stages=(0, 0)):
@@ -84,36 +105,37 @@ def resumed(run: Path, data: Path, out: Path, stages=(0, 0)):
 
 
 def fresh_adam(trainer, variant: str, steps: int) -> None:
-    """`steps` steps of one of the fresh-Adam variants (module docstring)."""
+    """One of the FRESH_ADAM variants, from where `trainer` stands."""
     import numpy as np
     import torch
 
+    _, part, times, draw = FRESH_ADAM[variant]
     cfg, avatar = trainer.config, trainer.avatar
     end = cfg.lr_final_ratio
     avatar.requires_grad_(False)
-    if variant == "stage2":
+    if part == "stage2":
         groups = [(avatar.features, cfg.lr.features), (avatar.decoder, cfg.lr.decoder)]
         params = [{"params": list(m.parameters()), "lr": lr * end} for m, lr in groups]
     else:
         sizes = {
             "features": list(avatar.features),
             "sparsest": [trainer.sparsest],
-            "sparsest x2": [trainer.sparsest],
             "64 and 32": sorted(avatar.features, key=int)[:2],
-        }[variant]
+        }[part]
         params = [{"params": [avatar.features[s] for s in sizes], "lr": cfg.lr.features * end}]
     for group in params:
         for p in group["params"]:
             p.requires_grad_(True)
     adam = torch.optim.Adam(params)
-    near_lod1 = variant not in ("stage2", "features")
     rng = np.random.default_rng(SEED)
-    for _ in range(2 * steps if variant == "sparsest x2" else steps):
+    for _ in range(times * steps):
         frame = trainer.frames[rng.integers(len(trainer.frames))]
-        if near_lod1:
+        if draw == "band":
             lod = float(1 - cfg.lod1_band * rng.random() ** 2)
-        else:  # stage 2's draw, at one of its steps
+        elif draw == "stage 2":  # stage 2's draw, at one of its steps
             lod = trainer.lods(cfg.stage1_steps + int(rng.integers(cfg.stage2_steps)))[0]
+        else:
+            lod = float(1 - draw * rng.random())
         adam.zero_grad(set_to_none=True)
         rgb, g = trainer.render(frame, lod)
         total, _ = trainer.loss.terms(rgb, frame.image, frame.parts, g, lod, 0.0, None)
@@ -126,37 +148,53 @@ def train(variant: str, args, folder: Path) -> float:
     """Seconds of one variant's steps (and checkpoints), its avatar written to `folder`."""
     from archhead_addon.train.config import TrainConfig
 
-    stages = TrainConfig.load(args.preset).stage_steps[2:] if variant == "preset" else (0, 0)
-    trainer = resumed(args.run, args.data, folder, stages)
-    start = time.perf_counter()
+    if variant == "preset":
+        trainer = resumed(
+            args.run, args.data, folder, TrainConfig.load(args.preset).stage_steps[2:]
+        )
+    else:
+        start = FRESH_ADAM[variant][0]
+        origin = args.run if start == "run" else folder_of(args.out, start)
+        if not (origin / "train_state.pt").is_file():
+            sys.exit(f"'{variant}' continues '{start}': run that variant first")
+        trainer = resumed(origin, args.data, folder)
+    begin = time.perf_counter()
     if variant == "preset":
         trainer.run(lambda report: None, lambda step, path: None)
     else:
         fresh_adam(trainer, variant, args.steps)
-    return time.perf_counter() - start
+    return time.perf_counter() - begin
 
 
-def scores(avatar: Path, data: Path, out: Path) -> dict[float, dict]:
+def scores(avatar: Path, data: Path, out: Path, lods: str) -> dict[float, dict]:
     """{LOD: metrics.csv row} of `evaluate` on the held-out frames."""
     if not (out / "metrics.csv").is_file():
         subprocess.run(
             [sys.executable, "-m", "archhead_addon.evaluate", "--avatar", str(avatar),
              "--data", str(data), "--out", str(out), "--split", "test",
-             "--lods", "0,0.5,1", "--precisions", "fp32"],
+             "--lods", lods, "--precisions", "fp32"],
             check=True, stdout=subprocess.DEVNULL,
         )  # fmt: skip
     with open(out / "metrics.csv") as f:
         return {float(row["lod"]): row for row in csv.DictReader(f)}
 
 
+def _column(rows: dict, key: str, lods=(0.0, 0.5, 1.0)) -> str:
+    return " / ".join(f"{float(rows[lod][key]):.2f}" for lod in lods)
+
+
 def main(argv=None) -> None:
     args = parse_args(argv)
+    end = {0.9, 0.95} <= {float(x) for x in args.lods.split(",")}
     print(
         "| variant | PSNR LOD 0 / 0.5 / 1 | LOD 1 vs 0 | head PSNR LOD 0 / 0.5 / 1 "
-        "| face, LOD 0 | s of steps |\n|---|---|---:|---|---:|---:|"
+        + ("| l = 0.9 / 0.95 " if end else "")
+        + "| face, LOD 0 | s of steps |\n|---|---|---:|---|"
+        + ("---|" if end else "")
+        + "---:|---:|"
     )
     for variant in args.variants:
-        folder = args.out / variant.replace(" ", "_")
+        folder = folder_of(args.out, variant)
         seconds = 0.0
         if variant == "run":
             avatar = args.run / "avatar.npz"
@@ -165,13 +203,14 @@ def main(argv=None) -> None:
             if not (folder / "eval" / "metrics.csv").is_file():
                 shutil.rmtree(folder, ignore_errors=True)
                 seconds = train(variant, args, folder)
-        rows = scores(avatar, args.data, folder / "eval")
-        psnr = [float(rows[lod]["psnr"]) for lod in (0.0, 0.5, 1.0)]
-        head = [float(rows[lod]["psnr_head"]) for lod in (0.0, 0.5, 1.0)]
+        rows = scores(avatar, args.data, folder / "eval", args.lods)
+
+        psnr = [float(rows[lod]["psnr"]) for lod in (0.0, 1.0)]
         print(
-            f"| {variant} | {' / '.join(f'{v:.2f}' for v in psnr)} "
-            f"| {100 * (psnr[2] / psnr[0] - 1):.1f} % | {' / '.join(f'{v:.2f}' for v in head)} "
-            f"| {float(rows[0.0]['psnr_face']):.2f} | {seconds:.0f} |",
+            f"| {variant} | {_column(rows, 'psnr')} | {100 * (psnr[1] / psnr[0] - 1):.1f} % "
+            f"| {_column(rows, 'psnr_head')} "
+            + (f"| {_column(rows, 'psnr', (0.9, 0.95))} " if end else "")
+            + f"| {float(rows[0.0]['psnr_face']):.2f} | {seconds:.0f} |",
             flush=True,
         )
 

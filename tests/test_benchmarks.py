@@ -138,20 +138,20 @@ def test_later_stages_continue_a_finished_run_and_score_each_variant(
     from training_subject import write_config
 
     from archhead_addon.train.__main__ import main as train
+    from benchmarks.later_stages import VARIANTS
 
     run, config = tmp_path / "run", write_config(tmp_path / "tiny.json")
     assert train(["--data", str(tiny_subject), "--out", str(run), "--config", str(config)]) == 0
     staged = write_config(tmp_path / "staged.json", stage3_steps=2, stage4_steps=3)
     out = _benchmark(
         repo_root, "later_stages.py", "--run", run, "--data", tiny_subject, "--out",
-        tmp_path / "later", "--steps", 2, "--preset", staged,
+        tmp_path / "later", "--steps", 2, "--preset", staged, "--lods", "0,0.5,0.9,0.95,1",
     )  # fmt: skip
     rows = [line.split("|")[1:-1] for line in out.splitlines()[2:]]
-    assert [r[0].strip() for r in rows] == [
-        "run", "stage2", "features", "sparsest", "sparsest x2", "64 and 32", "preset"
-    ]  # fmt: skip
+    assert [r[0].strip() for r in rows] == list(VARIANTS)
     psnr = {r[0].strip(): r[1].strip() for r in rows}
     assert all(re.fullmatch(r"[\d.]+ / [\d.]+ / [\d.]+", v) for v in psnr.values())
+    assert all(re.fullmatch(r" [\d.]+ / [\d.]+ ", r[4]) for r in rows)  # l = 0.9 / 0.95
     assert len(set(psnr.values())) > 1  # the variants trained
     from archhead_addon.train.loop import load_state
 

@@ -1,4 +1,5 @@
-"""The two-stage training of the paper (sections 3.5 and 4.2), with checkpoints and resume.
+"""The two-stage training of the paper (sections 3.5 and 4.2) and two stages of the project's,
+with checkpoints and resume.
 
 Stage 1 (`stage1_steps`): every step renders one training frame at LOD 0 and trains the
 feature field, the mapping network and the decoder. Stage 2 (`stage2_steps`): every step
@@ -19,7 +20,7 @@ draws it), the level LOD 1 draws almost all its features from (docs/quality.md, 
 and 4").
 
 Randomness is a function of (seed, step) alone: the frame order (a permutation per epoch)
-and the levels of stages 2 and 3. The step is therefore the whole random state, and a
+and the levels of stages 2 to 4. The step is therefore the whole random state, and a
 resumed run takes the same steps as one that was never stopped.
 
 Files in the output folder, each replaced atomically:
