@@ -19,8 +19,8 @@ is not run again):
 - "sparsest", "sparsest x2": the sparsest level alone, near LOD 1 as the run's band draws
   it (1 - `lod1_band` v²), for `--steps` and twice as many;
 - "64 and 32": the two sparsest levels, near LOD 1;
-- "features, uniform 0.9" and "features, uniform 0.8": "features", then twice `--steps` of
-  the sparsest level alone at levels uniform in [0.9, 1] and [0.8, 1];
+- "features then uniform 0.9" and "features then uniform 0.8": "features", then twice
+  `--steps` of the sparsest level alone at levels uniform in [0.9, 1] and [0.8, 1];
 - "preset": the trainer resumed with the `cpu` preset's `stage3_steps` and `stage4_steps`
   (or `--preset`'s; Adam's moments carried on): the steps a run of the preset takes after
   its stage 2.
@@ -50,8 +50,8 @@ FRESH_ADAM = {
     "sparsest": ("run", "sparsest", 1, "band"),
     "sparsest x2": ("run", "sparsest", 2, "band"),
     "64 and 32": ("run", "64 and 32", 1, "band"),
-    "features, uniform 0.9": ("features", "sparsest", 2, 0.1),
-    "features, uniform 0.8": ("features", "sparsest", 2, 0.2),
+    "features then uniform 0.9": ("features", "sparsest", 2, 0.1),
+    "features then uniform 0.8": ("features", "sparsest", 2, 0.2),
 }
 VARIANTS = ("run", *FRESH_ADAM, "preset")
 SEED = 7  # the fresh-Adam variants' frames and levels

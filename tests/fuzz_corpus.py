@@ -507,7 +507,9 @@ def value_mutations(d: dict, rng) -> list[tuple[str, dict]]:
 
 
 def _patch_zip(data: bytes, what: str) -> bytes:
-    """One zip member given deflate64 (method 9), the encryption flag, or a huge size."""
+    """One zip member given deflate64 (method 9), the encryption flag, a version needed to
+    extract past what Python's zipfile reads (12.8: zipfile raises NotImplementedError), or
+    a huge size."""
     b = bytearray(data)
     local, central = b.find(b"PK\x03\x04"), b.find(b"PK\x01\x02")
     if what == "deflate64":
@@ -516,6 +518,8 @@ def _patch_zip(data: bytes, what: str) -> bytes:
     elif what == "encrypted":
         for at, off in ((local, 6), (central, 8)):
             struct.pack_into("<H", b, at + off, struct.unpack_from("<H", b, at + off)[0] | 1)
+    elif what == "future version":
+        struct.pack_into("<H", b, central + 6, 128)
     else:  # a member claiming 4 GiB uncompressed
         struct.pack_into("<I", b, local + 22, 0xFFFFFFF0)
         struct.pack_into("<I", b, central + 24, 0xFFFFFFF0)
@@ -525,7 +529,8 @@ def _patch_zip(data: bytes, what: str) -> bytes:
 def zip_mutations(data: bytes) -> list[tuple[str, bytes]]:
     import io
 
-    out = [(f"zip {w}", _patch_zip(data, w)) for w in ("deflate64", "encrypted", "size bomb")]
+    kinds = ("deflate64", "encrypted", "future version", "size bomb")
+    out = [(f"zip {w}", _patch_zip(data, w)) for w in kinds]
     buf = io.BytesIO(data)
     with zipfile.ZipFile(buf) as z:
         first = z.infolist()[0].filename

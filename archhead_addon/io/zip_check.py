@@ -31,6 +31,8 @@ def open_checked(path, max_bytes: int = DEFAULT_MAX_BYTES, what="zip archive") -
     kind of file in the error for one that is no zip archive at all."""
     try:
         archive = zipfile.ZipFile(path)
+    except NotImplementedError as exc:  # a member's version needed to extract, past zipfile's
+        raise InputError(path, None, f"{what} of a zip version Python cannot read ({exc})") from exc
     except (zipfile.BadZipFile, OSError, ValueError, EOFError, IndexError, KeyError) as exc:
         raise InputError(path, None, f"not a readable {what} ({exc})") from exc
     try:
