@@ -1,4 +1,5 @@
-"""Handing memory that numpy freed back to the system.
+"""Handing memory that numpy freed back to the system, or keeping it where a process frees
+and takes the same memory over and over.
 
 A decode's temporaries (tens of MB on the decoding threads) are freed between the frames and
 tables that stay, and the C allocator keeps such holes mapped: a crowd of 16 full-size
@@ -7,6 +8,12 @@ Blender on Linux runs on glibc's malloc (the bpy module), jemalloc (Debian's 4.3
 scalable allocator (Debian's 5.2), each with its own call that returns free pages; where
 none is found (Windows) `release_free_memory` does nothing. `resident_mb` reads what the
 process holds (the benchmarks' and tests' one reading of it).
+
+Training is the other case: every step frees and allocates again the same tens of MB
+(the decoder's activations, 11.5 MB each at LOD 0), and glibc's defaults hand much of it
+back to the system between steps, so the next step takes it again page by page: 2,000-7,000
+page faults a stage-1 step. `keep_freed_memory` keeps it in the process instead
+(benchmarks/freed_memory.py measures what that is worth).
 """
 
 from __future__ import annotations
@@ -15,6 +22,8 @@ import ctypes
 import functools
 from pathlib import Path
 
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters
+MMAP_THRESHOLD_MAX = 32 << 20  # the largest glibc takes on 64-bit systems
 ALL_ARENAS = b"arena.4096.purge"  # jemalloc >= 4.5: MALLCTL_ARENAS_ALL
 CLEAN_ALL_BUFFERS = 0  # TBB's ScalableAllocationCmd TBBMALLOC_CLEAN_ALL_BUFFERS
 
@@ -50,6 +59,21 @@ def release_free_memory() -> bool:
     for call in calls:
         call()
     return bool(calls)
+
+
+def keep_freed_memory() -> bool:
+    """Make glibc's malloc keep freed memory for the next allocation: blocks up to 32 MB
+    come from the heap rather than from mappings of their own (which go back to the system
+    when freed), and the heap's free top is not trimmed. For a long run of alike steps
+    (training, tracking); its peak RSS is what it holds from then on. False where malloc is
+    not glibc's (nothing changed)."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, TypeError, AttributeError):  # Windows, macOS: another malloc
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    kept = mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_MAX) == 1
+    return mallopt(M_TRIM_THRESHOLD, 2**31 - 1) == 1 and kept
 
 
 def resident_mb(field: str = "VmRSS") -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from ..heap import keep_freed_memory
 from ..io.errors import InputError
 from ..train.progress import Progress
 from .detect import MAX_HAND_COVER
@@ -59,6 +60,7 @@ def _track(args) -> int:
     from .photometric import PhotometricOptions
     from .pipeline import TrackOptions, track
 
+    keep_freed_memory()  # the refinement's steps, as training's (heap.py)
     progress = Progress(args.progress_json)
     last = {}
 

@@ -24,6 +24,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..heap import keep_freed_memory
 from ..io.atomic import remove_stale_temporaries
 from ..io.errors import InputError, InputWarning
 from ..threads import choose_openmp_waiting, limit_thread_environment
@@ -213,6 +214,7 @@ def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    keep_freed_memory()  # every step takes again what the last one freed (heap.py)
     waiting = choose_openmp_waiting()  # before torch loads OpenMP
     progress = Progress(args.progress_json)
     progress.message(waiting)
