@@ -42,6 +42,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from archhead_addon.heap import keep_freed_memory
+
 # name: (the variant it continues, what trains, times --steps, its levels); "band": the
 # run's draw near LOD 1, a number w: uniform in [1 - w, 1]
 FRESH_ADAM = {
@@ -185,6 +187,7 @@ def _column(rows: dict, key: str, lods=(0.0, 0.5, 1.0)) -> str:
 
 def main(argv=None) -> None:
     args = parse_args(argv)
+    keep_freed_memory()  # as the training command does
     end = {0.9, 0.95} <= {float(x) for x in args.lods.split(",")}
     print(
         "| variant | PSNR LOD 0 / 0.5 / 1 | LOD 1 vs 0 | head PSNR LOD 0 / 0.5 / 1 "

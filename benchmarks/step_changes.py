@@ -32,6 +32,7 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 
+from archhead_addon.heap import keep_freed_memory
 from archhead_addon.threads import choose_openmp_waiting, limit_thread_environment
 
 OLD_TABLES = 32  # the count bound the model's tables had
@@ -65,6 +66,7 @@ def main(argv=None) -> None:
     p.add_argument("--steps", type=int, default=40, help="steps per block")
     p.add_argument("--warm", type=int, default=150, help="untimed steps before each stage")
     args = p.parse_args(argv)
+    keep_freed_memory()  # as the training command does
     choose_openmp_waiting()
     limit_thread_environment()
 

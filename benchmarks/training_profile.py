@@ -40,6 +40,7 @@ from functools import partial
 from pathlib import Path
 
 from archhead_addon.avatar.lod import resolution_for_lod
+from archhead_addon.heap import keep_freed_memory
 from archhead_addon.threads import WAITING, choose_openmp_waiting
 from archhead_addon.timing import restart_with_threads
 
@@ -243,6 +244,7 @@ def _render(trainer, leaves, frame, w, h):
 def training_setup(args):
     """(config, dataset, frames in memory) of `args.config` on `args.data`, with
     `args.threads` threads (the process restarts itself with the thread variables set)."""
+    keep_freed_memory()  # as the training command does
     choose_openmp_waiting()  # as the training command does, before torch loads
     restart_with_threads(args.threads)
 
