@@ -10,10 +10,11 @@ none is found (Windows) `release_free_memory` does nothing. `resident_mb` reads 
 process holds (the benchmarks' and tests' one reading of it).
 
 Training is the other case: every step frees and allocates again the same tens of MB
-(the decoder's activations, 11.5 MB each at LOD 0), and glibc's defaults hand much of it
-back to the system between steps, so the next step takes it again page by page: 2,000-7,000
-page faults a stage-1 step. `keep_freed_memory` keeps it in the process instead
-(benchmarks/freed_memory.py measures what that is worth).
+(the decoder's activations, 11.5 MB each at LOD 0). glibc maps blocks above a threshold on
+their own and unmaps them when freed; it raises the threshold when it sees such a block
+freed, but a resumed run's process kept the default and took the blocks again page by page
+every step (2,000-7,000 page faults a stage-1 step, 1.18x its time).
+`keep_freed_memory` keeps them in every process (benchmarks/freed_memory.py).
 """
 
 from __future__ import annotations
