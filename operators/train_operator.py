@@ -33,7 +33,7 @@ REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "resume", "base_con
 # Times measured on the project's 2-core machine (a loaded machine takes longer): the real
 # subjects' runs of docs/quality.md.
 PRESET_HELP = {
-    "cpu": "The CPU avatar: 34,530 steps at 256 px (25-45 min on 2 cores)",
+    "cpu": "The CPU avatar: 37,530 steps at 256 px (30-45 min on 2 cores)",
     "cpu_short": "The CPU avatar in 4,600 steps at 256 px (about 10 min on 2 cores)",
     "gpu_paper": "The paper's settings, for a CUDA GPU (45,000 steps at 512 px); not for a CPU",
     "demo": "600 steps at 96 px (17 s on 2 cores): to check that everything runs",

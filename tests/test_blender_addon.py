@@ -99,6 +99,22 @@ def test_train_operator_starts_from_the_command_lines_preset(addon):
     assert training.training_settings({"stage1_steps": 7}) == {**preset, "stage1_steps": 7}
 
 
+def test_preset_tooltips_give_the_presets_steps(addon):
+    """The dialog's tooltip of each preset names its steps (a preset's steps changed and its
+    tooltip did not, once)."""
+    import importlib
+    import re
+
+    from archhead_addon.train.config import PRESETS, STAGE_STEPS, config_data
+
+    module = importlib.import_module(f"{addon.__name__}.operators.train_operator")
+    for name in PRESETS:
+        stated = re.search(r"([\d,]+) steps", module.PRESET_HELP[name])
+        assert stated, f"the {name} tooltip names no steps"
+        total = sum(config_data(name).get(key, 0) for key in STAGE_STEPS)
+        assert int(stated.group(1).replace(",", "")) == total, name
+
+
 INSTALL_AND_REPORT = """
 import sys, bpy
 from pathlib import Path
