@@ -111,7 +111,9 @@ def forward_full(model: FlameModel, dtype=np.float64, **codes) -> FlameOutput:
                 batch, n_v, 3
             )
 
-    joints_rest = np.einsum("jv,bvc->bjc", arrays["j_regressor"], v_shaped)
+    # matrix products rather than einsum: 4-5x faster for one frame (a crowd's far heads
+    # decode one each)
+    joints_rest = arrays["j_regressor"] @ v_shaped  # (B,5,3)
     pose = np.stack(
         [code("rotation"), code("neck"), code("jaw"), code("eyes")[:, :3], code("eyes")[:, 3:]],
         axis=1,
@@ -121,7 +123,9 @@ def forward_full(model: FlameModel, dtype=np.float64, **codes) -> FlameOutput:
     v_posed = v_shaped + (feature @ arrays["posedirs"].T).reshape(batch, n_v, 3)
 
     transforms = _chain(rot, joints_rest, model.parents)
-    blend = np.einsum("vj,bjrc->bvrc", arrays["weights"], transforms[:, :, :3, :])  # (B,V,3,4)
+    blend = (arrays["weights"] @ transforms[:, :, :3, :].reshape(batch, N_JOINTS, 12)).reshape(
+        batch, n_v, 3, 4
+    )
     verts = np.einsum("bvrc,bvc->bvr", blend[..., :3], v_posed) + blend[..., 3]
     trans = code("translation")[:, None, :]
     joints = np.einsum("bjrc,bjc->bjr", transforms[:, :, :3, :3], joints_rest)
