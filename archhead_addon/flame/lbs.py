@@ -111,8 +111,8 @@ def forward_full(model: FlameModel, dtype=np.float64, **codes) -> FlameOutput:
                 batch, n_v, 3
             )
 
-    # matrix products rather than einsum: 4-5x faster for one frame (a crowd's far heads
-    # decode one each)
+    # matrix products rather than einsum: 3-6x faster (benchmarks/flame_forward.py; a crowd's far
+    # heads decode one frame each)
     joints_rest = arrays["j_regressor"] @ v_shaped  # (B,5,3)
     pose = np.stack(
         [code("rotation"), code("neck"), code("jaw"), code("eyes")[:, :3], code("eyes")[:, 3:]],
