@@ -10,7 +10,6 @@ minimum of `--repeats` runs of each.
 from __future__ import annotations
 
 import argparse
-import time
 from functools import partial
 
 import numpy as np
@@ -18,17 +17,9 @@ import numpy as np
 from archhead_addon.flame.lbs import forward_full, model_arrays
 from archhead_addon.flame.model import load_model
 from archhead_addon.threads import one_blas_thread
+from archhead_addon.timing import time_calls
 
 F32 = np.float32
-
-
-def best_ms(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * min(times)
 
 
 def main(argv=None) -> None:
@@ -65,7 +56,8 @@ def main(argv=None) -> None:
                 ),
             ]
         for name, fn, frames in rows:  # a batch's runs a tenth as many
-            print(f"{name:34s} {best_ms(fn, args.repeats // (10 if frames > 1 else 1)):9.3f} ms")
+            ms = time_calls(fn, args.repeats // (10 if frames > 1 else 1)).min_ms
+            print(f"{name:34s} {ms:9.3f} ms")
 
 
 if __name__ == "__main__":
