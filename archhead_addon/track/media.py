@@ -1,7 +1,10 @@
 """Frames from a video file, a folder of numbered images or a single image, as RGB uint8.
 
-Video is decoded with OpenCV (FFmpeg inside its wheel). A file OpenCV cannot open, or one
-that yields no frame, is an InputError naming it; a video that ends before the frame count
+Video is decoded with OpenCV (FFmpeg inside its wheel), turned upright as the file's
+rotation says (a phone's portrait video is stored sideways with a rotation to show it by, and
+OpenCV 4.11 stopped applying it by default; images are turned by their EXIF orientation in
+`train.images`). A file OpenCV cannot open, or one that yields no frame, is an InputError
+naming it; a video that ends before the frame count
 its header claims (truncated) is used up to where it ends, with a warning.
 """
 
@@ -52,7 +55,7 @@ def open_frames(path) -> FrameSource:
         return FrameSource(path, DEFAULT_FPS, 1, "image", [(0, path)])
     import cv2
 
-    capture = cv2.VideoCapture(str(path))
+    capture = _capture(path)
     try:
         if not capture.isOpened():
             raise InputError(
@@ -74,10 +77,19 @@ def open_frames(path) -> FrameSource:
     return FrameSource(path, float(fps), max(count, 1), "video")
 
 
-def _video_frames(path: Path, limit: int) -> Iterator[tuple[int, np.ndarray]]:
+def _capture(path: Path):
+    """An OpenCV capture of `path` that turns the frames as the file's rotation says."""
     import cv2
 
     capture = cv2.VideoCapture(str(path))
+    capture.set(cv2.CAP_PROP_ORIENTATION_AUTO, 1)
+    return capture
+
+
+def _video_frames(path: Path, limit: int) -> Iterator[tuple[int, np.ndarray]]:
+    import cv2
+
+    capture = _capture(path)
     number = 0
     try:
         while number < limit:

@@ -4,12 +4,14 @@ Colour comes out (H,W,3) float32 in [0,1], sRGB-encoded like the PNG and JPG fra
 holds linear light, so it is clipped to [0,1] and encoded with the sRGB curve. Masks come out
 (H,W) float32 in [0,1]: grey images as they are, colour images by their luminance (masks
 saved as RGB have equal channels), EXR by its Y, R or A channel. 16-bit grey PNGs keep their
-precision; Pillow reads 16-bit colour PNGs as 8-bit. Every failure to read is an InputError
-naming the file.
+precision; Pillow reads 16-bit colour PNGs as 8-bit. A PNG or JPG comes out turned as its EXIF
+orientation says (a phone stores a portrait photo sideways with an orientation to show it by),
+as viewers and OpenCV show it. Every failure to read is an InputError naming the file.
 """
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +20,7 @@ from ..io.errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
 _EXR_MASK_CHANNELS = ("Y", "R", "A")
+EXIF_ORIENTATION = 0x0112  # 1: as stored; 2-8: mirrored and/or turned; 5-8 swap width and height
 
 
 def _is_exr(path: Path) -> bool:
@@ -41,7 +44,8 @@ def image_size(path) -> tuple[int, int]:
         from PIL import Image
 
         with Image.open(path) as im:
-            return im.height, im.width
+            turned = _orientation(im) in (5, 6, 7, 8)
+            return (im.width, im.height) if turned else (im.height, im.width)
     except (OSError, RuntimeError, ValueError, SyntaxError, KeyError) as exc:
         raise _unreadable(path, exc) from exc
 
@@ -68,13 +72,24 @@ def _srgb_encode(linear: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
+def _orientation(im) -> int:
+    """The EXIF orientation of a Pillow image, 1 (as stored) where it has none or a bad one
+    (a truncated file's pixels fail with their own error when they are read)."""
+    try:
+        value = im.getexif().get(EXIF_ORIENTATION, 1)
+    except (OSError, ValueError, SyntaxError, struct.error):
+        return 1
+    return value if value in range(1, 9) else 1
+
+
 def _pil_array(path: Path, colour: bool):
     """Pixels as float32 in [0,1]: (H,W,3) plus alpha (H,W) or None if colour, else (H,W)."""
-    from PIL import Image
+    from PIL import Image, ImageOps
 
     try:
-        with Image.open(path) as im:
-            im.load()
+        with Image.open(path) as opened:
+            opened.load()
+            im = ImageOps.exif_transpose(opened) if _orientation(opened) != 1 else opened
             if im.mode in ("I;16", "I;16B", "I;16L", "I"):  # 16-bit grey
                 grey = np.asarray(im, dtype=np.float32) / 65535.0
                 return (np.repeat(grey[..., None], 3, 2), None) if colour else grey
