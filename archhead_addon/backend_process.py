@@ -20,6 +20,8 @@ import threading
 import time
 from pathlib import Path
 
+from .track import FRAME_BUDGET
+
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the folder that holds archhead_addon/
 CANCEL_GRACE_S = 60.0  # SIGINT -> terminate -> kill, each after this long
 
@@ -56,9 +58,11 @@ def track_command(
     size: int = 512,
     photometric: bool = True,
     static_offset: bool = False,
+    frame_budget: int = FRAME_BUDGET,
 ) -> list:
+    """`frame_budget` 0: every frame (`track --frame-budget`)."""
     cmd = [str(python), "-m", "archhead_addon", "track", str(source), "--out", str(out_dir)]
-    cmd += ["--size", str(size), "--progress-json"]
+    cmd += ["--size", str(size), "--frame-budget", str(frame_budget), "--progress-json"]
     cmd += [] if photometric else ["--no-photometric"]
     cmd += ["--static-offset"] if static_offset else []
     return cmd + (["--frames", str(frames)] if frames > 0 else [])

@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 from .threads import choose_openmp_waiting
+from .track.cli import add_frame_flags
 from .train.config import DEFAULT_PRESET, PRESETS
 from .train.dataset import TRACKING_FILE
 from .train.run_folder import RunFolder
@@ -43,7 +44,7 @@ def add_avatar(commands) -> None:
         help=f"training preset (default {DEFAULT_PRESET}; docs/training.md)",
     )
     p.add_argument("--flame", help="FLAME model file (default: the built-in head)")
-    p.add_argument("--frames", type=int, help="track only the first N frames")
+    add_frame_flags(p)
     p.add_argument(
         "--progress-json", action="store_true", help="each stage's JSON progress on stdout"
     )
@@ -67,6 +68,7 @@ def track_command(args) -> list[str]:
         command += ["--flame", str(args.flame)]
     if args.frames:
         command += ["--frames", str(args.frames)]
+    command += ["--frame-budget", str(args.frame_budget)]
     return command + (["--progress-json"] if args.progress_json else [])
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import bpy
 
 from archhead_addon.backend_process import BackendRun, track_command
+from archhead_addon.track import FRAME_BUDGET
 from archhead_addon.train.dataset import TRACKING_FILE
 from archhead_addon.train.progress import RunStatus
 
@@ -65,15 +66,24 @@ def start_tracking(
     photometric: bool = True,
     static_offset: bool = False,
     env: dict | None = None,
+    frame_budget: int = FRAME_BUDGET,
 ) -> TrackingRun:
-    """`env`: variables for the backend's environment (BackendRun)."""
+    """`env`: variables for the backend's environment (BackendRun); `frame_budget` 0: every
+    frame."""
     if current_tracking() is not None:
         raise ValueError("a tracking run is already going; cancel it first")
     source, out_dir = Path(source).resolve(), Path(out_dir).resolve()
     if not source.exists():
         raise ValueError(f"{source}: not found")
     command = track_command(
-        backend_python(context), source, out_dir, frames, size, photometric, static_offset
+        backend_python(context),
+        source,
+        out_dir,
+        frames,
+        size,
+        photometric,
+        static_offset,
+        frame_budget,
     )
     model = flame_model_path(context)
     if model:

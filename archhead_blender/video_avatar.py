@@ -27,6 +27,7 @@ import bpy
 
 from archhead_addon.io.errors import InputError
 from archhead_addon.threads import openmp_waiting_env
+from archhead_addon.track import FRAME_BUDGET
 from archhead_addon.train.dataset import FRAMES_DIR, TRACKING_FILE
 from archhead_addon.train.run_folder import RunFolder
 from archhead_addon.video_avatar import DATA, RUN, stages_done
@@ -43,9 +44,19 @@ TRACK_SHARE = 0.3  # of the progress bar; training has the rest (import and load
 class VideoAvatarRun:
     """The stages of one Avatar from Video: which one is going, its backend run, the head."""
 
-    def __init__(self, video, out_dir, preset: str, frames: int, size: int, photometric: bool):
+    def __init__(
+        self,
+        video,
+        out_dir,
+        preset: str,
+        frames: int,
+        size: int,
+        photometric: bool,
+        frame_budget: int = FRAME_BUDGET,
+    ):
         self.video, self.out = video, Path(out_dir).resolve()
         self.preset, self.frames, self.size, self.photometric = preset, frames, size, photometric
+        self.frame_budget = frame_budget  # 0: every frame
         self.name = self.out.name  # the head's name
         self.stage = "start"  # track, train, done
         self.tracking = None
@@ -81,6 +92,7 @@ class VideoAvatarRun:
                 self.size,
                 self.photometric,
                 env=self.waiting,
+                frame_budget=self.frame_budget,
             )
             return
         self._train(context, done["trained"])
@@ -245,6 +257,7 @@ def start_video_avatar(
     frames: int = 0,
     size: int = 512,
     photometric: bool = True,
+    frame_budget: int = FRAME_BUDGET,
 ) -> VideoAvatarRun:
     """Start (or go on with) Avatar from Video into `out_dir`; the first stage that is not
     done yet starts at once."""
@@ -254,7 +267,7 @@ def start_video_avatar(
         raise ValueError("a tracking run is already going; cancel it first")
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    run = VideoAvatarRun(video, out, preset, frames, size, photometric)
+    run = VideoAvatarRun(video, out, preset, frames, size, photometric, frame_budget)
     STATE.video_run = run
     try:
         run.start(context)

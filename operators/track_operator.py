@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import bpy
 
+from archhead_addon.track import FRAME_BUDGET
 from archhead_blender.tracking import (
     current_tracking,
     finish_tracking,
@@ -31,6 +32,13 @@ class ARCHHEAD_OT_track_video(BackendWatch, bpy.types.Operator):
     )
     frames: bpy.props.IntProperty(
         name="Frames", min=0, default=0, description="Track only the first N frames (0: all)"
+    )
+    frame_budget: bpy.props.IntProperty(
+        name="Most frames",
+        min=0,
+        default=FRAME_BUDGET,
+        description="Track at most this many frames, one in 2, 3 ... of a longer "
+        "clip: tracking's time grows with the frames, training's does not (0: every frame)",
     )
     size: bpy.props.IntProperty(name="Size", min=64, max=2048, default=512)
     photometric: bpy.props.BoolProperty(
@@ -62,6 +70,7 @@ class ARCHHEAD_OT_track_video(BackendWatch, bpy.types.Operator):
                 self.size,
                 self.photometric,
                 self.static_offset,
+                frame_budget=self.frame_budget,
             )
         except (OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))

@@ -82,6 +82,7 @@ def test_both_stages_wait_as_chosen_before_tracking(tmp_path, monkeypatch):
             "cpu",
             False,
         )
+        frame_budget = 900
 
     for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
         monkeypatch.delenv(name, raising=False)

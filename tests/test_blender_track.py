@@ -5,6 +5,7 @@ import bpy
 import numpy as np
 import pytest
 
+from archhead_addon.sequences import read_sequence
 from archhead_addon.track.real_subject import fetch_media
 from archhead_blender.avatar_objects import head_of
 from archhead_blender.tracking import current_tracking
@@ -19,6 +20,7 @@ def test_track_video_imports_the_tracked_head(addon, tmp_path):
         video=str(fetch_media() / "single_face.mp4"),
         out_dir=str(out),
         frames=10,
+        frame_budget=5,
         size=128,
         static_offset=True,
     )
@@ -28,7 +30,9 @@ def test_track_video_imports_the_tracked_head(addon, tmp_path):
     heads = {head_of(o) for o in new} - {None}
     assert [h.name for h in heads] == ["tracked"]
     head = next(iter(heads))
-    assert head.get("archhead_frames") == 10
+    # one frame in 2 of the first 10 (Most frames), keyed at the video's own times
+    assert head.get("archhead_frames") == 5
+    assert read_sequence(out / "tracking.npz").frame_ids.tolist() == [0, 2, 4, 6, 8]
     # the tracking's static offset travels with the head, for the avatar loaded onto it
     offset = np.asarray(head["archhead_identity_offset"]).reshape(-1, 3)
     assert offset.shape == (len(head.data.vertices), 3) and np.abs(offset).max() > 0

@@ -402,3 +402,24 @@ def test_phone_photos_are_read_as_their_exif_orientation_shows_them(media, tmp_p
     assert np.abs(rgb * 255 - upright).mean() < 3
     grey = read_mask(path)
     assert grey.shape == upright.shape[:2] and np.abs(grey * 255 - upright.mean(2)).mean() < 5
+
+
+def test_a_clip_beyond_the_frame_budget_is_tracked_on_every_kth_frame(media, tmp_path):
+    """A phone video of a minute is 1,800 frames at 30 fps; every stage of the tracker costs
+    a frame's time, training does not, so beyond the budget every k-th frame is tracked
+    (the fewest k that keep to it), and the gaps travel in the frame numbers."""
+    from archhead_addon.track import FRAME_BUDGET
+    from archhead_addon.track.pipeline import frame_stride
+
+    assert [frame_stride(n, FRAME_BUDGET) for n in (299, 900, 901, 1800, 3600)] == [1, 1, 2, 2, 4]
+    assert frame_stride(5000, None) == 1
+    with pytest.raises(InputError, match="frame_budget"):
+        frame_stride(100, 1)
+    out = tmp_path / "out"
+    options = TrackOptions(size=96, max_frames=64, frame_budget=16, photometric=None)
+    report = track(media / REAL_VIDEO, out, options)
+    ids = read_sequence(out / "tracking.npz").frame_ids
+    assert report["frame_stride"] == 4 and report["frames_read"] == 16
+    assert len(ids) >= 14 and set(ids.tolist()) <= set(range(0, 64, 4))
+    assert sorted(int(p.stem) for p in (out / "frames").iterdir()) == ids.tolist()
+    assert np.isfinite(report["jitter_px"]["fitted"])  # over runs of frames 4 apart

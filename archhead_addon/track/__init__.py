@@ -13,3 +13,9 @@
 - `folder`: the training folder, written into a temporary sibling and renamed when complete;
 - `pipeline`: the whole run with progress; `accuracy`: measurements against known codes.
 """
+
+# Frames tracked at most, every k-th of a longer clip: every stage's time grows with the frames
+# (the webcam clip's 765 took 7.9 min on 2 cores) and training's steps do not, so a minute of
+# phone video at 30 fps is tracked on every 2nd frame (docs/tracking.md, "Long videos"). Here,
+# not in `pipeline`: Blender's side reads it without the tracker's imports.
+FRAME_BUDGET = 900

@@ -7,6 +7,7 @@ import sys
 from ..heap import keep_freed_memory
 from ..io.errors import InputError
 from ..train.progress import Progress
+from . import FRAME_BUDGET
 from .detect import MAX_HAND_COVER
 
 
@@ -21,7 +22,7 @@ def add_track(commands) -> None:
     p.add_argument("input", help="video file, folder of numbered images, or one image")
     p.add_argument("--out", required=True, help="training folder to write (replaced whole)")
     p.add_argument("--flame", help="FLAME model file (default: the built-in head)")
-    p.add_argument("--frames", type=int, help="track only the first N frames")
+    add_frame_flags(p)
     p.add_argument("--size", type=int, default=512, help="square output size (default 512)")
     p.add_argument(
         "--focal", type=float, help="focal length in pixels of the input frames (default: fitted)"
@@ -40,6 +41,22 @@ def add_track(commands) -> None:
         help="JSON progress events on stdout (for the Blender operator)",
     )
     p.set_defaults(run=_track)
+
+
+def add_frame_flags(p) -> None:
+    p.add_argument("--frames", type=int, help="track only the first N frames")
+    p.add_argument(
+        "--frame-budget",
+        type=int,
+        default=FRAME_BUDGET,
+        help=f"track at most N frames, every k-th of a longer clip (default {FRAME_BUDGET}; "
+        "0: every frame)",
+    )
+
+
+def frame_budget(args) -> int | None:
+    """--frame-budget as TrackOptions takes it: None for every frame."""
+    return args.frame_budget or None
 
 
 def add_refinement_flags(p) -> None:
@@ -74,6 +91,7 @@ def _track(args) -> int:
     options = TrackOptions(
         size=args.size,
         max_frames=args.frames,
+        frame_budget=frame_budget(args),
         focal=args.focal,
         flame=args.flame,
         max_hand_cover=args.max_hand_cover,
@@ -89,9 +107,10 @@ def _track(args) -> int:
             raise  # run_command: one `error:` line, status 2
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    r = report["residual_px"]
+    r, stride = report["residual_px"], report["frame_stride"]
+    every = f" (one frame in {stride}: --frame-budget)" if stride > 1 else ""
     print(
-        f"{args.out}: {report['frames_kept']} of {report['frames_read']} frames tracked, "
+        f"{args.out}: {report['frames_kept']} of {report['frames_read']} frames tracked{every}, "
         f"{len(report['dropped'])} dropped; landmark residual {r['median']:.2f} px median, "
         f"{r['p95']:.2f} px 95th at {report['output_size']} px; "
         f"{report['seconds_per_frame']:.2f} s per frame",
@@ -112,7 +131,7 @@ def add_subject(commands) -> None:
     )
     p.add_argument("which", choices=("real", "webcam"), help="which subject")
     p.add_argument("--out", required=True, help="training folder to write (replaced whole)")
-    p.add_argument("--frames", type=int, help="track only the first N frames")
+    add_frame_flags(p)
     p.add_argument("--size", type=int, default=512, help="square output size (default 512)")
     add_refinement_flags(p)
     p.add_argument(

@@ -31,13 +31,14 @@ class FrameSource:
     kind: str  # "video", "images" or "image"
     _files: list | None = None
 
-    def frames(self, limit: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
-        """(frame number, RGB (H,W,3) uint8) in order, at most `limit` of them."""
+    def frames(self, limit: int | None = None, stride: int = 1) -> Iterator[tuple[int, np.ndarray]]:
+        """(frame number, RGB (H,W,3) uint8) in order: every `stride`-th of the first `limit`
+        frames (the first one first)."""
         limit = self.count if limit is None else min(limit, self.count)
         if self.kind == "video":
-            yield from _video_frames(self.path, limit)
+            yield from _video_frames(self.path, limit, stride)
             return
-        for number, path in self._files[:limit]:
+        for number, path in self._files[:limit:stride]:
             rgb, _ = read_image(path)
             yield number, np.round(rgb[..., :3] * 255).astype(np.uint8)
 
@@ -86,13 +87,18 @@ def _capture(path: Path):
     return capture
 
 
-def _video_frames(path: Path, limit: int) -> Iterator[tuple[int, np.ndarray]]:
+def _video_frames(path: Path, limit: int, stride: int) -> Iterator[tuple[int, np.ndarray]]:
     import cv2
 
     capture = _capture(path)
     number = 0
     try:
         while number < limit:
+            if number % stride:  # decoded (frames depend on earlier ones), not converted
+                if not capture.grab():
+                    break
+                number += 1
+                continue
             ok, bgr = capture.read()
             if not ok:
                 break

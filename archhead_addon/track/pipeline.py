@@ -7,6 +7,7 @@ soft and mostly flat, are kept deflated (a full-HD frame's 2 MB in a few tens of
 
 from __future__ import annotations
 
+import math
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,7 @@ from ..sequences import write_canonical
 from ..timing import Stopwatch
 from ..train.dataset import MASKS_DIR, PERSON_MASKS_DIR, REGIONS_DIR, TRACKING_FILE
 from ..train.images import read_mask, resize
+from . import FRAME_BUDGET
 from .detect import MAX_HAND_COVER, FaceDetector
 from .embedding import landmark_embedding
 from .fit import ClipFit, FitOptions, crop_intrinsics, fit_landmarks, fitted_sequence
@@ -42,7 +44,8 @@ OUTLIER_RATIO, OUTLIER_MIN_PX = 4.0, 6.0  # a frame's residual beyond both is dr
 @dataclass
 class TrackOptions:
     size: int = 512
-    max_frames: int | None = None
+    max_frames: int | None = None  # the clip's first frames only
+    frame_budget: int | None = FRAME_BUDGET  # every k-th frame beyond it; None: every frame
     focal: float | None = None  # pixels at the source frames' size
     flame: str | None = None  # a FLAME model file; None: the built-in head
     max_hand_cover: float = MAX_HAND_COVER  # 1 keeps frames with a hand over the face
@@ -98,8 +101,10 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     numbers, landmarks, masks, dropped, multi = [], [], [], [], 0
     size = None
     total = source.count if opt.max_frames is None else min(opt.max_frames, source.count)
+    stride = frame_stride(total, opt.frame_budget)
+    chosen = math.ceil(total / stride)
     with FaceDetector(video=source.kind == "video", hands=opt.max_hand_cover < 1) as detect:
-        for number, rgb in source.frames(total):
+        for number, rgb in source.frames(total, stride):
             if size is None:
                 size = rgb.shape[:2]
             elif rgb.shape[:2] != size:
@@ -124,7 +129,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
                 numbers.append(number)
                 landmarks.append(found.landmarks)
                 masks.append(_Deflated(np.round(found.mask * 255).astype(np.uint8)))
-            say(event="step", stage="detect", step=len(numbers) + len(dropped), total=total)
+            say(event="step", stage="detect", step=len(numbers) + len(dropped), total=chosen)
     times["detect"] = watch.seconds
     n_read = len(numbers) + len(dropped)
     if multi:
@@ -182,7 +187,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     with staged_folder(out) as stage:
         watch = Stopwatch()
         images, image_masks = [], []
-        for number, rgb in source.frames(total):
+        for number, rgb in source.frames(total, stride):
             j = position.get(number)
             if j is None:
                 continue
@@ -255,9 +260,17 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             times,
             multi,
             photometric,
+            stride,
         )
         write_report(stage, report)
     return report
+
+
+def frame_stride(frames: int, budget: int | None) -> int:
+    """k: every k-th of a clip's `frames` is tracked, the fewest that keep to `budget`."""
+    if budget is not None and budget < MIN_FRAMES:
+        raise InputError(None, "frame_budget", f"{budget} frames: tracking needs {MIN_FRAMES}")
+    return 1 if budget is None else max(math.ceil(frames / budget), 1)
 
 
 def _offset_mm(offset) -> dict | None:
@@ -267,10 +280,10 @@ def _offset_mm(offset) -> dict | None:
     return {"median": round(float(np.median(length)), 3), "max": round(float(length.max()), 3)}
 
 
-def jitter_px(points: np.ndarray, numbers: np.ndarray) -> float:
-    """Median second difference of landmark tracks (T,L,2) over runs of consecutive frames:
-    how far points jump beyond constant velocity, frame to frame."""
-    run = (np.diff(numbers[:-1]) == 1) & (np.diff(numbers[1:]) == 1)
+def jitter_px(points: np.ndarray, numbers: np.ndarray, stride: int = 1) -> float:
+    """Median second difference of landmark tracks (T,L,2) over runs of frames `stride` apart
+    (consecutive ones of those tracked): how far points jump beyond constant velocity."""
+    run = (np.diff(numbers[:-1]) == stride) & (np.diff(numbers[1:]) == stride)
     if not run.any():
         return float("nan")
     second = points[2:] - 2 * points[1:-1] + points[:-2]
@@ -278,7 +291,19 @@ def jitter_px(points: np.ndarray, numbers: np.ndarray) -> float:
 
 
 def _report(
-    source, opt, n_read, numbers, landmarks, dropped, fit, scale, crop, times, multi, photometric
+    source,
+    opt,
+    n_read,
+    numbers,
+    landmarks,
+    dropped,
+    fit,
+    scale,
+    crop,
+    times,
+    multi,
+    photometric,
+    stride,
 ) -> dict:
     """The tracking report of the kept frames (`numbers`, `landmarks`, `fit` are theirs)."""
     good = fit.landmark_residual_px * scale  # at the output size
@@ -294,6 +319,7 @@ def _report(
     return {
         "source": str(source.path),
         "frames_read": int(n_read),
+        "frame_stride": stride,  # every k-th frame of the clip was read
         "frames_kept": int(len(numbers)),
         "dropped": sorted(dropped, key=lambda d: d["frame"]),
         "frames_with_several_faces": int(multi),
@@ -305,8 +331,8 @@ def _report(
         "model": opt.flame or "built-in",
         "residual_px": rounded,
         "jitter_px": {
-            "fitted": round(jitter_px(fit.projected * scale, numbers), 3),
-            "detected": round(jitter_px(landmarks * scale, numbers), 3),
+            "fitted": round(jitter_px(fit.projected * scale, numbers, stride), 3),
+            "detected": round(jitter_px(landmarks * scale, numbers, stride), 3),
         },
         "photometric": None if photometric is None else photometric.as_dict(),
         "static_offset_mm": _offset_mm(fit.codes.get("static_offset")),
