@@ -1,7 +1,9 @@
 """The numpy FLAME forward pass (`flame/lbs.py`): one frame in float32, as each head of a
 crowd decodes it, and a 300-frame batch in float64, as tracking and training load a
-sequence; and its two joint products as einsum (before 2026-11-29) against the matrix
-products it takes now, in one process on one BLAS thread. The built-in head; prints the
+sequence; its two joint products as einsum (before 2026-11-29) against the matrix products
+it takes now, and the expression's product with a column slice of the (3V, S+E) blend shapes
+(before 2026-11-30) against whole rows of the (S+E, 3V) ones it keeps now, in one process on
+one BLAS thread. The built-in head; prints the
 minimum of `--repeats` runs of each.
 
     python benchmarks/flame_forward.py [--repeats 50]
@@ -41,7 +43,16 @@ def main(argv=None) -> None:
             t = rng.normal(size=(frames, 5, 3, 4)).astype(dtype)
             name = f"{frames} frame{'s' * (frames > 1)}, {np.dtype(dtype).name}"
             joints, weights = a["j_regressor"], a["weights"]
+            expr = rng.normal(size=(frames, model.n_expr)).astype(dtype)
+            rows_e = a["shapedirs"][model.n_shape :]  # (E, 3V)
+            columns = np.ascontiguousarray(a["shapedirs"].T)  # (3V, S+E), as before
             rows += [
+                (
+                    f"expression, column slice, {name}",
+                    lambda c=columns, e=expr: e @ c[:, model.n_shape :].T,
+                    frames,
+                ),
+                (f"expression, rows, {name}", partial(np.matmul, expr, rows_e), frames),
                 (f"joints, einsum, {name}", partial(np.einsum, "jv,bvc->bjc", joints, v), frames),
                 (f"joints, matmul, {name}", partial(np.matmul, joints, v), frames),
                 (
@@ -57,7 +68,7 @@ def main(argv=None) -> None:
             ]
         for name, fn, frames in rows:  # a batch's runs a tenth as many
             ms = time_calls(fn, args.repeats // (10 if frames > 1 else 1)).min_ms
-            print(f"{name:34s} {ms:9.3f} ms")
+            print(f"{name:46s} {ms:9.3f} ms")
 
 
 if __name__ == "__main__":

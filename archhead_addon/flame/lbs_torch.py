@@ -45,8 +45,8 @@ class FlameLayer(torch.nn.Module):
         for key, start in (("shape", 0), ("expr", self.model.n_shape)):
             if c[key] is not None:
                 k = c[key].shape[1]
-                dirs = self.shapedirs[:, start : start + k]
-                v_shaped = v_shaped + (code(key) @ dirs.T).reshape(batch, n_v, 3)
+                dirs = self.shapedirs[start : start + k]  # (k, 3V), as lbs.model_arrays lays it
+                v_shaped = v_shaped + (code(key) @ dirs).reshape(batch, n_v, 3)
 
         joints_rest = torch.einsum("jv,bvc->bjc", self.j_regressor, v_shaped)
         eyes = code("eyes")
