@@ -423,3 +423,27 @@ def test_a_clip_beyond_the_frame_budget_is_tracked_on_every_kth_frame(media, tmp
     assert len(ids) >= 14 and set(ids.tolist()) <= set(range(0, 64, 4))
     assert sorted(int(p.stem) for p in (out / "frames").iterdir()) == ids.tolist()
     assert np.isfinite(report["jitter_px"]["fitted"])  # over runs of frames 4 apart
+
+
+def test_a_recording_without_a_duration_is_read_to_its_end(media, tmp_path):
+    """A browser's (MediaRecorder) or a live recorder's WebM or Matroska file has no duration
+    in its header, which OpenCV reads as a frame count of about -2e17: the frames are counted
+    (it was read as one frame, and tracking refused a video of one face)."""
+    import cv2
+
+    from archhead_addon.track.media import open_frames
+
+    upright = [rgb for _, rgb in open_frames(media / REAL_VIDEO).frames(12)]
+    video = tmp_path / "recording.mkv"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (640, 360))
+    for rgb in upright:
+        writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    writer.release()
+    data = bytearray(video.read_bytes())
+    at = data.index(b"\x44\x89")  # Matroska's Segment Info Duration: made an EBML Void
+    length = 3 + (data[at + 2] & 0x7F)
+    data[at : at + length] = bytes([0xEC, 0x80 | (length - 2)]) + bytes(length - 2)
+    video.write_bytes(bytes(data))
+    assert cv2.VideoCapture(str(video)).get(cv2.CAP_PROP_FRAME_COUNT) < 0
+    source = open_frames(video)
+    assert source.count == 12 and len(list(source.frames())) == 12

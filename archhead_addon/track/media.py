@@ -4,8 +4,8 @@ Video is decoded with OpenCV (FFmpeg inside its wheel), turned upright as the fi
 rotation says (a phone's portrait video is stored sideways with a rotation to show it by, and
 OpenCV 4.11 stopped applying it by default; images are turned by their EXIF orientation in
 `train.images`). A file OpenCV cannot open, or one that yields no frame, is an InputError
-naming it; a video that ends before the frame count
-its header claims (truncated) is used up to where it ends, with a warning.
+naming it; a video that ends before the frame count its header claims (truncated) is used up
+to where it ends, with a warning, and one whose header has no count is counted.
 """
 
 from __future__ import annotations
@@ -21,6 +21,9 @@ from ..train.dataset import numbered_images
 from ..train.images import IMAGE_SUFFIXES, read_image
 
 DEFAULT_FPS = 25.0
+# A header's frame count above this (65 hours at 70 fps) is not a count: a stream without a
+# duration (a browser's or a live recorder's WebM or MKV) reads as -2e17 or so.
+MAX_FRAME_COUNT = 1 << 24
 
 
 @dataclass
@@ -66,8 +69,10 @@ def open_frames(path) -> FrameSource:
                 "EXR image or a folder of them)",
             )
         fps = capture.get(cv2.CAP_PROP_FPS)
-        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
         ok, _ = capture.read()
+        if ok and not (np.isfinite(count) and 1 <= count <= MAX_FRAME_COUNT):
+            count = 1 + _frames_left(capture)  # no count in the header: counted
     finally:
         capture.release()
     if not ok:
@@ -75,7 +80,15 @@ def open_frames(path) -> FrameSource:
     if not np.isfinite(fps) or not 1 <= fps <= 1000:
         warn_input(path, "fps", f"implausible frame rate {fps!r}; using {DEFAULT_FPS:g}")
         fps = DEFAULT_FPS
-    return FrameSource(path, float(fps), max(count, 1), "video")
+    return FrameSource(path, float(fps), int(count), "video")
+
+
+def _frames_left(capture) -> int:
+    """The frames a capture has left, each decoded once (no pixels converted)."""
+    n = 0
+    while capture.grab():
+        n += 1
+    return n
 
 
 def _capture(path: Path):
