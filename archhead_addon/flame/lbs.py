@@ -36,7 +36,7 @@ def model_arrays(model: FlameModel, dtype) -> dict[str, np.ndarray]:
         per_model[key] = {
             "v_template": model.v_template.astype(dtype),
             # (S+E, 3V): a code's block is whole rows, read in order (a column slice of
-            # (3V, S+E) took 2.3x as long for one frame's expression)
+            # (3V, S+E) took 2-3x as long for one frame's expression: flame_forward.py)
             "shapedirs": np.ascontiguousarray(model.shapedirs.reshape(v * 3, -1).T, dtype),
             "posedirs": model.posedirs.reshape(v * 3, -1).astype(dtype),  # (3V, 36)
             "j_regressor": model.j_regressor.astype(dtype),
