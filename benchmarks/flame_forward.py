@@ -1,10 +1,10 @@
 """The numpy FLAME forward pass (`flame/lbs.py`): one frame in float32, as each head of a
 crowd decodes it, and a 300-frame batch in float64, as tracking and training load a
 sequence; its two joint products as einsum (before 2026-11-29) against the matrix products
-it takes now, and the expression's product with a column slice of the (3V, S+E) blend shapes
-(before 2026-11-30) against whole rows of the (S+E, 3V) ones it keeps now, in one process on
-one BLAS thread. The built-in head; prints the
-minimum of `--repeats` runs of each.
+it takes now, and the expression's product with a column slice of the (3V, S+E) blend
+shapes (the layout before) against whole rows of the (S+E, 3V) ones it keeps now, in one
+process on one BLAS thread. The built-in head; prints the minimum of `--repeats` runs of
+each.
 
     python benchmarks/flame_forward.py [--repeats 50]
 """
