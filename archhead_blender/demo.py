@@ -31,6 +31,7 @@ import bpy
 import numpy as np
 
 from archhead_addon.backend_process import PACKAGE_ROOT
+from archhead_addon.threads import openmp_waiting_env
 
 from . import api
 
@@ -50,7 +51,9 @@ def backend_python(fallback: str | None = None) -> str:
     return python
 
 
-def train_avatar(data: Path, out: Path, config: str, python: str) -> Path:
+def train_avatar(data: Path, out: Path, config: str, python: str, waiting: dict) -> Path:
+    """`waiting`: how training's OpenMP threads wait, chosen before the demo's own render
+    loaded the cores (threads.openmp_waiting_env)."""
     if out.exists():  # an earlier demo's run: the demo trains anew (training would refuse)
         shutil.rmtree(out)
     command = api.train_command(python, data, out, config)
@@ -61,6 +64,7 @@ def train_avatar(data: Path, out: Path, config: str, python: str) -> Path:
     # the add-on's backends run), from whatever folder the demo was started in
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PACKAGE_ROOT), env.get("PYTHONPATH")]))
+    env.update(waiting)
     with open(log, "w") as stream:
         status = subprocess.run(command, env=env, stdout=stream, stderr=subprocess.STDOUT)
     if status.returncode != 0:
@@ -163,6 +167,9 @@ def run(args, fallback_python: str | None = None) -> dict:
     """The whole demo; returns {what: path} and the step times."""
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
+    # chosen now: the subject's render would leave a load that training takes for other jobs'
+    # and its threads would sleep (54 s of training instead of 41 on 2 quiet cores)
+    waiting = openmp_waiting_env()
     steps = api.Steps("demo")
     with steps("built-in head"):
         model = api.load_model()
@@ -184,7 +191,11 @@ def run(args, fallback_python: str | None = None) -> dict:
             )
         with steps("training"):
             checkpoint = train_avatar(
-                out / "subject", out / "train", args.train_config, backend_python(fallback_python)
+                out / "subject",
+                out / "train",
+                args.train_config,
+                backend_python(fallback_python),
+                waiting,
             )
 
     api.enable_addon()

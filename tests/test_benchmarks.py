@@ -100,6 +100,8 @@ def test_training_profile_prints_both_versions_of_both_stages(repo_root, tiny_su
         ("2", "after"),
     ]
     assert re.search(r"stage 1: step [\d.]+x .* resample [\d.]+x", out)
+    saved = re.search(r"a checkpoint: (\d+) ms, ([\d.]+) MB written", out)
+    assert saved and float(saved[2]) > 0.1  # the avatar and the training state, at least
 
 
 def test_step_changes_times_every_variant_against_the_step_before(
