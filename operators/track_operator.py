@@ -14,6 +14,17 @@ from archhead_blender.tracking import (
 from .backend_watch import BackendWatch
 
 
+def frame_budget_property():
+    """Track Video's and Avatar from Video's "Most frames" (`track --frame-budget`)."""
+    return bpy.props.IntProperty(
+        name="Most frames",
+        min=0,
+        default=FRAME_BUDGET,
+        description="Track at most this many frames, one in 2, 3 ... of a longer "
+        "clip: tracking's time grows with the frames, training's does not (0: every frame)",
+    )
+
+
 class ARCHHEAD_OT_track_video(BackendWatch, bpy.types.Operator):
     """Track a face video into a training folder in a background process, then import the
     tracked head"""
@@ -33,13 +44,7 @@ class ARCHHEAD_OT_track_video(BackendWatch, bpy.types.Operator):
     frames: bpy.props.IntProperty(
         name="Frames", min=0, default=0, description="Track only the first N frames (0: all)"
     )
-    frame_budget: bpy.props.IntProperty(
-        name="Most frames",
-        min=0,
-        default=FRAME_BUDGET,
-        description="Track at most this many frames, one in 2, 3 ... of a longer "
-        "clip: tracking's time grows with the frames, training's does not (0: every frame)",
-    )
+    frame_budget: frame_budget_property()
     size: bpy.props.IntProperty(name="Size", min=64, max=2048, default=512)
     photometric: bpy.props.BoolProperty(
         name="Refine on the frames",

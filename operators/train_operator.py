@@ -36,7 +36,7 @@ PRESET_HELP = {
     "cpu": "The CPU avatar: 37,530 steps at 256 px (30-45 min on 2 cores)",
     "cpu_short": "The CPU avatar in 4,600 steps at 256 px (about 10 min on 2 cores)",
     "gpu_paper": "The paper's settings, for a CUDA GPU (45,000 steps at 512 px); not for a CPU",
-    "demo": "600 steps at 96 px (17 s on 2 cores): to check that everything runs",
+    "demo": "600 steps at 96 px (about 40 s on 2 cores): to check that everything runs",
 }
 PRESET_ITEMS = [(name, name, PRESET_HELP.get(name, "")) for name in PRESETS]
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import bpy
 
 from archhead_addon.io.errors import InputError
-from archhead_addon.track import FRAME_BUDGET
 from archhead_addon.train.config import DEFAULT_PRESET
 from archhead_blender.state import STATE
 from archhead_blender.video_avatar import (
@@ -17,6 +16,7 @@ from archhead_blender.video_avatar import (
 )
 
 from .backend_watch import BackendWatch
+from .track_operator import frame_budget_property
 from .train_operator import PRESET_ITEMS
 
 DIALOG_KEY = "avatar_from_video"  # its remembered fields in STATE.dialog_fields
@@ -44,13 +44,7 @@ class ARCHHEAD_OT_avatar_from_video(BackendWatch, bpy.types.Operator):
     frames: bpy.props.IntProperty(
         name="Frames", min=0, default=0, description="Track only the first N frames (0: all)"
     )
-    frame_budget: bpy.props.IntProperty(
-        name="Most frames",
-        min=0,
-        default=FRAME_BUDGET,
-        description="Track at most this many frames, one in 2, 3 ... of a longer "
-        "clip: tracking's time grows with the frames, training's does not (0: every frame)",
-    )
+    frame_budget: frame_budget_property()
     size: bpy.props.IntProperty(
         name="Size", min=64, max=2048, default=512, description="The tracked frames' size"
     )

@@ -54,11 +54,6 @@ def add_frame_flags(p) -> None:
     )
 
 
-def frame_budget(args) -> int | None:
-    """--frame-budget as TrackOptions takes it: None for every frame."""
-    return args.frame_budget or None
-
-
 def add_refinement_flags(p) -> None:
     p.add_argument(
         "--no-photometric",
@@ -91,7 +86,7 @@ def _track(args) -> int:
     options = TrackOptions(
         size=args.size,
         max_frames=args.frames,
-        frame_budget=frame_budget(args),
+        frame_budget=args.frame_budget or None,  # 0: every frame
         focal=args.focal,
         flame=args.flame,
         max_hand_cover=args.max_hand_cover,
