@@ -113,9 +113,11 @@ def refine_photometric(
     K = crop_intrinsics(K, crop, size)  # the crops' camera
     rotation = torch.from_numpy(w2c[:3, :3]).float()
     shift = torch.from_numpy(w2c[:3, 3]).float()
-    # frames as (T,4,s,s): colour and mask sampled together
-    stack = np.concatenate([images.astype(np.float32) / 255.0, masks[..., None]], axis=-1)
-    pixels = torch.from_numpy(stack).permute(0, 3, 1, 2).contiguous()
+    # frames as (T,4,s,s): colour and mask sampled together; filled in place, where a float
+    # copy of the frames, their stack and its transposed copy took 3x its size at once
+    pixels = torch.empty(n_frames, 4, size, size)
+    pixels[:, :3].copy_(torch.from_numpy(images).permute(0, 3, 1, 2)).div_(255.0)
+    pixels[:, 3].copy_(torch.from_numpy(np.asarray(masks, np.float32)))
 
     def observe():
         """Sampled colours (B,P,3), weights (B,P) and normals in camera axes (B,P,3)."""

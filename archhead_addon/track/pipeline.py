@@ -207,6 +207,7 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
         photometric = None
         if small:
             watch = Stopwatch()
+            images, image_masks = np.array(images), np.array(image_masks)  # the lists go
             clip = ClipFit(
                 model,
                 embedding,
@@ -220,8 +221,8 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
             )
             photometric = refine_photometric(
                 clip,
-                np.array(images),
-                np.array(image_masks),
+                images,
+                image_masks,
                 (x0, y0, side),
                 opt.photometric,
                 progress=lambda d, t, e: say(event="step", stage="refine", step=d, total=t),
