@@ -117,7 +117,7 @@ def refine_photometric(
     # copy of the frames, their stack and its transposed copy took 3x its size at once
     pixels = torch.empty(n_frames, 4, size, size)
     pixels[:, :3].copy_(torch.from_numpy(images).permute(0, 3, 1, 2)).div_(255.0)
-    pixels[:, 3].copy_(torch.from_numpy(np.asarray(masks, np.float32)))
+    pixels[:, 3].copy_(torch.from_numpy(masks))
 
     def observe():
         """Sampled colours (B,P,3), weights (B,P) and normals in camera axes (B,P,3)."""
