@@ -32,7 +32,10 @@ def python_with_torch() -> str | None:
     return sys.executable if importlib.util.find_spec("torch") is not None else None
 
 
-def train_command(python: str, data_dir, out_dir, config=None, resume: bool = False) -> list:
+def train_command(
+    python: str, data_dir, out_dir, config=None, resume: bool = False, minutes: float = 0.0
+) -> list:
+    """The training backend's command; `minutes`: its time limit (train/time_limit.py)."""
     cmd = [
         str(python),
         "-m",
@@ -47,6 +50,8 @@ def train_command(python: str, data_dir, out_dir, config=None, resume: bool = Fa
         cmd += ["--config", str(config)]
     if resume:
         cmd.append("--resume")
+    if minutes:
+        cmd += ["--minutes", f"{minutes:.3f}"]
     return cmd
 
 

@@ -5,7 +5,8 @@ Ctrl-C stops it where it would stop alone):
   1. track VIDEO into DIR/data (skipped when DIR/data holds a finished tracking: the tracker
      writes its folder whole or not at all);
   2. train DIR/data into DIR/run (resumed from its last checkpoint when a run was stopped or
-     killed; skipped when finished).
+     killed; skipped when finished); with `--minutes M`, within what is left of M minutes
+     from the command's start, the preset's steps shortened to fit (train/time_limit.py).
 Run it again after a quit or a crash and it carries on from the stage it reached. The last
 lines say how to bring the head and the avatar into Blender (the add-on's Avatar from Video
 runs the same stages and loads them itself). Ctrl-C stops the stage running as it would stop
@@ -15,9 +16,11 @@ alone: training saves its checkpoint first.
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from .threads import choose_openmp_waiting
@@ -27,6 +30,7 @@ from .train.dataset import TRACKING_FILE
 from .train.run_folder import RunFolder
 
 DATA, RUN = "data", "run"
+MIN_TRAINING_MINUTES = 1.0  # less than this left of --minutes trains nothing worth loading
 
 
 def add_avatar(commands) -> None:
@@ -45,6 +49,13 @@ def add_avatar(commands) -> None:
     )
     p.add_argument("--flame", help="FLAME model file (default: the built-in head)")
     add_frame_flags(p)
+    p.add_argument(
+        "--minutes",
+        type=float,
+        default=0.0,
+        help="finish within M minutes, training on what tracking leaves of them, the "
+        "preset's steps shortened to fit (default 0: the preset's steps)",
+    )
     p.add_argument(
         "--progress-json", action="store_true", help="each stage's JSON progress on stdout"
     )
@@ -81,7 +92,14 @@ def train_command(args) -> list[str]:
         command += ["--config", args.preset, "--holdout", "interleaved"]
     if args.flame:
         command += ["--flame", str(args.flame)]
+    if args.minutes:
+        command += ["--minutes", f"{minutes_left(args):.3f}"]
     return command + (["--progress-json"] if args.progress_json else [])
+
+
+def minutes_left(args) -> float:
+    """What the command's time limit leaves (the limit when it has none: 0)."""
+    return args.minutes - (time.monotonic() - args.started) / 60 if args.minutes else 0.0
 
 
 def _run_stage(command: list[str]) -> int:
@@ -97,6 +115,10 @@ def _run_stage(command: list[str]) -> int:
 
 
 def run_avatar(args) -> int:
+    args.started = time.monotonic()
+    if not (args.minutes >= 0 and math.isfinite(args.minutes)):
+        print(f"avatar: --minutes: must be a number >= 0, got {args.minutes}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     # One choice for both stages, made before the tracker loads the cores: training, choosing
     # when it starts, would take the tracker's load for other jobs' and let its threads sleep
@@ -110,6 +132,14 @@ def run_avatar(args) -> int:
         if finished:
             print(f"avatar: {name}: done earlier, kept", file=sys.stderr)
             continue
+        if name == "train" and args.minutes and minutes_left(args) < MIN_TRAINING_MINUTES:
+            print(
+                f"avatar: tracking took {args.minutes - minutes_left(args):.1f} min of the "
+                f"{args.minutes:g}-minute limit, which leaves no time to train; run the same "
+                "command again (the tracking is kept), the limit counts from its start",
+                file=sys.stderr,
+            )
+            return 1
         status = _run_stage(command(args))
         if status:
             print(

@@ -198,9 +198,11 @@ def start_training(
     resume: bool = False,
     head_name: str | None = None,
     env: dict | None = None,
+    minutes: float = 0.0,
 ) -> TrainingRun:
     """Write the config, launch the backend, remember the run for the panel. `env`:
-    variables for the backend's environment (BackendRun)."""
+    variables for the backend's environment (BackendRun); `minutes`: the run's time limit
+    from now (0: none), its steps shortened to fit (train/time_limit.py)."""
     if current_run() is not None:
         raise ValueError("a training run is already going; cancel it first")
     out_dir = Path(out_dir).resolve()
@@ -209,7 +211,7 @@ def start_training(
     run_folder = RunFolder(out_dir)
     config = run_folder.request
     config.write_text(json.dumps(settings, indent=1) + "\n")
-    command = train_command(backend_python(context), data, out_dir, config, resume)
+    command = train_command(backend_python(context), data, out_dir, config, resume, minutes)
     model = flame_model_path(context)
     if model:
         command += ["--flame", bpy.path.abspath(model)]

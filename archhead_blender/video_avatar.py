@@ -9,6 +9,7 @@ output folder laid out as `python -m archhead_addon avatar VIDEO --out DIR` lays
      it in this file);
   3. train OUT/data into OUT/run with the chosen preset and the interleaved holdout (Train
      Avatar's backend: training.start_training), resumed when OUT/run holds a stopped run;
+     with a time limit, within what tracking left of it (as the command line's `--minutes`);
   4. load OUT/run/avatar.npz onto the head (Load Avatar's avatar_objects.load_avatar).
 
 A finished stage is skipped (the tracker writes OUT/data whole or not at all; a finished
@@ -21,6 +22,7 @@ stops Track Video's and Train Avatar's (training saves a checkpoint first).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import bpy
@@ -30,7 +32,7 @@ from archhead_addon.threads import openmp_waiting_env
 from archhead_addon.track import FRAME_BUDGET
 from archhead_addon.train.dataset import FRAMES_DIR, TRACKING_FILE
 from archhead_addon.train.run_folder import RunFolder
-from archhead_addon.video_avatar import DATA, RUN, stages_done
+from archhead_addon.video_avatar import DATA, MIN_TRAINING_MINUTES, RUN, stages_done
 
 from .avatar_objects import head_of, load_avatar
 from .state import STATE
@@ -53,8 +55,10 @@ class VideoAvatarRun:
         size: int,
         photometric: bool,
         frame_budget: int = FRAME_BUDGET,
+        minutes: float = 0.0,
     ):
         self.video, self.out = video, Path(out_dir).resolve()
+        self.minutes, self.started = minutes, time.monotonic()  # the time limit (0: none)
         self.preset, self.frames, self.size, self.photometric = preset, frames, size, photometric
         self.frame_budget = frame_budget  # 0: every frame
         self.name = self.out.name  # the head's name
@@ -108,6 +112,13 @@ class VideoAvatarRun:
             return
         settings = training_settings({"holdout": HOLDOUT}, self.preset)
         resume = RunFolder(self.run_dir).state.is_file()
+        left = self.minutes - (time.monotonic() - self.started) / 60 if self.minutes else 0.0
+        if self.minutes and left < MIN_TRAINING_MINUTES:
+            raise ValueError(
+                f"tracking took {self.minutes - left:.1f} min of the {self.minutes:g}-minute "
+                "time limit, which leaves no time to train; run Avatar from Video again on "
+                "the same Output (the tracking is kept): the limit counts from its start"
+            )
         self.stage = "train"
         self.training = start_training(
             context,
@@ -118,6 +129,7 @@ class VideoAvatarRun:
             resume,
             head.name,
             env=self.waiting,
+            minutes=left,
         )
         self.training.resume_hint = self.resume_hint()
 
@@ -258,6 +270,7 @@ def start_video_avatar(
     size: int = 512,
     photometric: bool = True,
     frame_budget: int = FRAME_BUDGET,
+    minutes: float = 0.0,
 ) -> VideoAvatarRun:
     """Start (or go on with) Avatar from Video into `out_dir`; the first stage that is not
     done yet starts at once."""
@@ -267,7 +280,7 @@ def start_video_avatar(
         raise ValueError("a tracking run is already going; cancel it first")
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    run = VideoAvatarRun(video, out, preset, frames, size, photometric, frame_budget)
+    run = VideoAvatarRun(video, out, preset, frames, size, photometric, frame_budget, minutes)
     STATE.video_run = run
     try:
         run.start(context)

@@ -29,7 +29,7 @@ from .backend_watch import BackendWatch
 PRESET = config_data()  # read once: the properties' defaults
 OVERRIDABLE = ("resolution", "stage1_steps", "stage2_steps")
 DIALOG_KEY = "train_avatar"  # its remembered fields in STATE.dialog_fields
-REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "resume", "base_config")
+REMEMBERED = ("frames_dir", "tracking", "out_dir", "preset", "minutes", "resume", "base_config")
 # Times measured on the project's 2-core machine (a loaded machine takes longer): the real
 # subjects' runs of docs/quality.md.
 PRESET_HELP = {
@@ -39,6 +39,13 @@ PRESET_HELP = {
     "demo": "600 steps at 96 px (about 40 s on 2 cores): to check that everything runs",
 }
 PRESET_ITEMS = [(name, name, PRESET_HELP.get(name, "")) for name in PRESETS]
+
+
+def time_limit_property(description: str):
+    """Minutes a run may take, its steps shortened to fit (train/time_limit.py); 0: none."""
+    return bpy.props.FloatProperty(
+        name="Time limit (min)", min=0.0, soft_max=600.0, default=0.0, description=description
+    )
 
 
 def _show_preset(self, context):
@@ -87,6 +94,10 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
     resolution: bpy.props.IntProperty(name="Resolution", min=32, default=PRESET["resolution"])
     stage1_steps: bpy.props.IntProperty(name="Stage 1 steps", min=0, default=PRESET["stage1_steps"])
     stage2_steps: bpy.props.IntProperty(name="Stage 2 steps", min=0, default=PRESET["stage2_steps"])
+    minutes: time_limit_property(
+        "Finish within this many minutes, every stage's steps shortened in one proportion "
+        "(0: the steps above, however long they take); with Resume, counted from now"
+    )
     resume: bpy.props.BoolProperty(name="Resume", description="Continue the run in Output")
     base_config: bpy.props.StringProperty(
         name="Base config",
@@ -116,6 +127,7 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
         column = layout.column(align=True)
         for name in OVERRIDABLE:
             column.prop(self, name)
+        layout.prop(self, "minutes")
         layout.prop(self, "resume")
         layout.prop(self, "base_config")
 
@@ -136,6 +148,7 @@ class ARCHHEAD_OT_train_avatar(BackendWatch, bpy.types.Operator):
                 settings,
                 self.resume,
                 head.name if head else None,
+                minutes=self.minutes,
             )
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))

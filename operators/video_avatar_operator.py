@@ -17,10 +17,19 @@ from archhead_blender.video_avatar import (
 
 from .backend_watch import BackendWatch
 from .track_operator import frame_budget_property
-from .train_operator import PRESET_ITEMS
+from .train_operator import PRESET_ITEMS, time_limit_property
 
 DIALOG_KEY = "avatar_from_video"  # its remembered fields in STATE.dialog_fields
-REMEMBERED = ("video", "out_dir", "preset", "frames", "frame_budget", "size", "photometric")
+REMEMBERED = (
+    "video",
+    "out_dir",
+    "preset",
+    "minutes",
+    "frames",
+    "frame_budget",
+    "size",
+    "photometric",
+)
 
 
 class ARCHHEAD_OT_avatar_from_video(BackendWatch, bpy.types.Operator):
@@ -41,6 +50,10 @@ class ARCHHEAD_OT_avatar_from_video(BackendWatch, bpy.types.Operator):
         "Run again on the same folder to go on from where a stop left it",
     )
     preset: bpy.props.EnumProperty(name="Preset", items=PRESET_ITEMS, default=DEFAULT_PRESET)
+    minutes: time_limit_property(
+        "Finish within this many minutes from the start: training gets what tracking leaves, "
+        "the preset's steps shortened to fit (0: the preset's steps, however long they take)"
+    )
     frames: bpy.props.IntProperty(
         name="Frames", min=0, default=0, description="Track only the first N frames (0: all)"
     )
@@ -85,6 +98,7 @@ class ARCHHEAD_OT_avatar_from_video(BackendWatch, bpy.types.Operator):
                 self.size,
                 self.photometric,
                 self.frame_budget,
+                self.minutes,
             )
         except (InputError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))

@@ -49,6 +49,7 @@ def test_a_stopped_run_resumes_and_a_bad_video_names_the_stage(tmp_path):
 
     class Args:
         out, video, flame, frames, preset, progress_json = tmp_path, None, None, None, "cpu", False
+        minutes = 0.0
 
     assert stages_done(tmp_path) == {"tracked": False, "trained": False}
     assert "--resume" not in train_command(Args)
@@ -82,7 +83,7 @@ def test_both_stages_wait_as_chosen_before_tracking(tmp_path, monkeypatch):
             "cpu",
             False,
         )
-        frame_budget = 900
+        frame_budget, minutes = 900, 0.0
 
     for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
         monkeypatch.delenv(name, raising=False)
@@ -99,3 +100,40 @@ def test_both_stages_wait_as_chosen_before_tracking(tmp_path, monkeypatch):
     assert video_avatar.run_avatar(Args) == 0
     assert seen["track"] == seen["train"]
     assert seen["train"]["GOMP_SPINCOUNT"] and seen["train"]["OMP_WAIT_POLICY"] is None
+
+
+def test_training_gets_what_tracking_left_of_the_time_limit(tmp_path, monkeypatch, capsys):
+    """`--minutes 30` with 10 minutes of tracking: training is given 20; with 29.5, none is
+    left and the command stops before training (status 1), saying so; -1 is refused."""
+    from archhead_addon import video_avatar
+
+    class Args:
+        out, video, flame, frames, preset, progress_json = (
+            tmp_path,
+            "clip.mp4",
+            None,
+            None,
+            "cpu",
+            False,
+        )
+        frame_budget, minutes = 900, 30.0
+
+    tracking = {"minutes": 10.0}
+    given = []
+
+    def stage(command):
+        if "archhead_addon.train" in command:
+            given.append(float(command[command.index("--minutes") + 1]))
+        else:
+            Args.started -= 60 * tracking["minutes"]  # as if tracking had taken that long
+        return 0
+
+    monkeypatch.setattr(video_avatar, "_run_stage", stage)
+    assert video_avatar.run_avatar(Args) == 0
+    assert given == [pytest.approx(20.0, abs=0.05)]
+    tracking["minutes"] = 29.5
+    assert video_avatar.run_avatar(Args) == 1 and len(given) == 1
+    assert "leaves no time to train" in capsys.readouterr().err
+    Args.minutes = -1.0
+    assert video_avatar.run_avatar(Args) == 2
+    assert "--minutes" in capsys.readouterr().err

@@ -133,7 +133,7 @@ def test_train_dialog_names_empty_fields_and_keeps_what_was_typed(setup):
 
 def test_a_tracked_folder_trains_into_a_new_output_folder_with_a_preset(setup):
     """The tracking is found beside frames/, the output folder is created, and the preset's
-    values train where the fields were left alone."""
+    values train where the fields were left alone; the time limit reaches the backend."""
     from archhead_addon.train.config import config_data
 
     data = tracked_folder(setup)
@@ -146,8 +146,11 @@ def test_a_tracked_folder_trains_into_a_new_output_folder_with_a_preset(setup):
         resolution=32,
         stage1_steps=2,
         stage2_steps=1,
+        minutes=5.0,
     )
     assert result == {"FINISHED"}
+    assert json.loads((out / "config.json").read_text())["minutes"] == 5.0
+    assert "within 5 min" in (out / "train.log").read_text()
     request = json.loads((out / "train_request.json").read_text())
     demo = config_data("demo")
     assert request == {**demo, "resolution": 32, "stage1_steps": 2, "stage2_steps": 1}
@@ -201,3 +204,9 @@ def test_avatar_from_video_on_a_tracked_folder_imports_trains_loads_and_goes_on(
     assert (out / "run" / "train.log").read_text() == log  # nothing trained again
     with pytest.raises(RuntimeError, match="Video: choose the video"):
         bpy.ops.archhead.avatar_from_video(out_dir=str(setup["folder"] / "empty"))
+    # a time limit that tracking has spent (under a minute left) stops before training
+    spent = setup["folder"] / "from_video" / "spent"
+    shutil.copytree(tracked_folder(setup), spent / "data")
+    with pytest.raises(RuntimeError, match="leaves no time to train"):
+        bpy.ops.archhead.avatar_from_video(out_dir=str(spent), preset="demo", minutes=0.5)
+    assert not (spent / "run").exists() and module.current_video_run() is None

@@ -1,6 +1,6 @@
 """Train an avatar: python -m archhead_addon.train --data DIR --out DIR [--config F]
 [--resume] [--progress-json] [--flame FILE] [--holdout last|interleaved] [--mask head|person]
-[--frames N]
+[--frames N] [--minutes M]
 
 DIR holds frames/, optional masks/ and parts/, and tracking.npz (train/dataset.py). The run
 writes OUT/avatar.npz (the avatar), OUT/train_state.pt (to resume), OUT/config.json and
@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import time
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
     from .loop import Trainer
 
 INTERRUPTED = 130  # the shell's status for a run stopped by SIGINT
+OUTSIDE_MAIN = 2.0  # seconds of the process a time limit counts outside `main`: start and exit
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -79,6 +81,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         type=int,
         help="train on N frames of the training split, evenly spread (the quality ladder's "
         "one- and ten-frame fits); overrides the config's 'frames'",
+    )
+    p.add_argument(
+        "--minutes",
+        type=float,
+        help="end within M minutes of this command's start, every stage's steps shortened "
+        "in one proportion (0: the config's steps; docs/training.md); overrides the "
+        "config's 'minutes'. A resumed run takes the steps its checkpoint fitted, and a "
+        "limit only when given one here",
     )
     return p.parse_args(argv)
 
@@ -135,6 +145,8 @@ def setup(args, progress: Progress) -> Trainer:
         config = replace(config, **{k: v for k, v in overrides.items() if v is not None})
     else:
         config = loop.state_config(state, state_path)
+    if args.minutes is not None:
+        config = replace(config, minutes=args.minutes)
     if config.threads:  # held to the cores (TrainConfig.read)
         torch.set_num_threads(config.threads)
     device = loop.resolve_device(config.device)
@@ -167,6 +179,13 @@ def setup(args, progress: Progress) -> Trainer:
             identity_offset=dataset.sequence.static_offset,
             sequence=dataset.sequence,
         )
+    # a resumed run keeps the steps its checkpoint fitted, and takes a limit anew only when
+    # given one (its config's says what fitted them)
+    if args.minutes is not None:
+        minutes = args.minutes
+    else:
+        minutes = 0.0 if state is not None else config.minutes
+    trainer.limit_time(args.started - OUTSIDE_MAIN, minutes)
     progress.event(
         START,
         step=trainer.step,
@@ -180,13 +199,13 @@ def setup(args, progress: Progress) -> Trainer:
         f"training on {len(frames)} frames of {dataset.size[1]}x"
         f"{dataset.size[0]} px, {device}, renderer {trainer.backend}"
         + (f", resumed at step {trainer.step}" if state is not None else "")
+        + (f", within {minutes:g} min" if minutes else "")
     )
     return trainer
 
 
 def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
-
-    finished = trainer.run(progress.step, progress.checkpoint, stop)
+    finished = trainer.run(progress.step, progress.checkpoint, stop, progress.message)
     folder = RunFolder(trainer.out_dir)
     problems = folder.problems(trainer.step)
     if problems:  # never "done" without the files it promises
@@ -214,6 +233,7 @@ def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    args.started = time.monotonic()  # a time limit counts from here (loading included)
     keep_freed_memory()  # every step takes again what the last one freed (heap.py)
     waiting = choose_openmp_waiting()  # before torch loads OpenMP
     progress = Progress(args.progress_json)

@@ -112,6 +112,9 @@ class TrainConfig:
     # dataset's `region`: what the mask keeps of the truth, from the tracked mesh alone)
     # before the loss, so that hair the mask's straight cuts leave out costs nothing.
     cut: str = "none"
+    # Not the paper's: end the run within this many minutes of its start, the stages'
+    # steps shortened in one proportion as it goes (time_limit.py); 0: the steps above.
+    minutes: float = 0.0
 
     def __post_init__(self):
         """Bad values raise InputError naming the key (`load` adds the file). JSON allows
@@ -139,6 +142,11 @@ class TrainConfig:
             self.lpips_levels in LPIPS_LEVELS,
             "lpips_levels",
             f"must be one of {LPIPS_LEVELS}, got {self.lpips_levels!r}",
+        )
+        _require(
+            finite_real(self.minutes) and self.minutes >= 0,
+            "minutes",
+            f"must be a finite number >= 0 (0: no time limit), got {self.minutes!r:.60}",
         )
         for key in ("lod1_share", "lod1_band"):
             value = getattr(self, key)

@@ -42,7 +42,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -59,13 +59,14 @@ from ..splat import rasterization
 from ..splat.colour_space import display_background, linear_to_srgb_torch
 from ..splat.rendering import select_backend
 from ..uv.layout import avatar_mesh
-from .config import TrainConfig
+from .config import STAGE_STEPS, TrainConfig
 from .losses import TrainingLoss
 from .perceptual import ShiftTolerantLPIPS
 from .progress import StepReport
 from .refine import CodeRefinement, refined_sequence
 from .run_folder import RunFolder
 from .state_file import STATE_FORMAT, STATE_VERSION, read_train_state
+from .time_limit import TimeLimit, predicted_rates
 
 EMA = 0.9  # smoothing of the seconds-per-step estimate
 POSE_CODES = ("expr", "jaw", "neck", "eyes")  # ArchHeadAvatar.pose's, in order
@@ -175,6 +176,7 @@ class Trainer:
         self.elapsed = 0.0  # training seconds over every session of the run
         self.backend = select_backend("auto", device)
         self._rate = dict.fromkeys((1, 2, 3, 4))  # smoothed seconds per step, by stage
+        self.time_limit: TimeLimit | None = None  # `limit_time`
         # stage 4's level: the one LOD 1 blends most from (the levels are distinct sizes)
         self.sparsest = str(min(avatar.config.levels)) if avatar.config.levels else None
 
@@ -383,18 +385,43 @@ class Trainer:
             self.refinement.requires_grad_(stage < 3)
 
     def eta(self) -> float:
-        cfg = self.config
-        rates = dict(self._rate)
-        if rates[2] is None and rates[1] is not None:
-            a = self.avatar.config
-            rates[2] = rates[1] * stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step)
+        cfg, a = self.config, self.avatar.config
+        rates = predicted_rates(self._rate, stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step))
         seconds, start = 0.0, 0
         for stage, steps in enumerate(cfg.stage_steps, start=1):
             left = max(start + steps - max(start, self.step), 0)
             start += steps
-            # a later stage's step costs less than a stage-2 one: its rate errs long
-            seconds += left * (rates[stage] or rates[2] or 0.0)
+            seconds += left * (rates[stage] or 0.0)
         return seconds
+
+    # -- time limit -----------------------------------------------------------------------
+
+    def limit_time(self, start: float, minutes: float) -> None:
+        """End the run by `minutes` after `start` (time.monotonic()), its steps fitted as it
+        goes (time_limit.py); `minutes` 0: the config's steps, however long they take."""
+        self.time_limit = None
+        if minutes > 0:
+            self.time_limit = TimeLimit.minutes_from(start, minutes, self.config.stage_steps)
+
+    def _fit_to_time(self, stage: int, seconds: float) -> str | None:
+        """After a step of `stage` that took `seconds`, refit the steps when due
+        (TimeLimit.observe); what the stage's first fit gives, said."""
+        limit, cfg, a = self.time_limit, self.config, self.avatar.config
+        if not limit.observe(stage, seconds):
+            return None
+        ratio = stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step)
+        rates = predicted_rates(limit.rates(), ratio)
+        steps = limit.fit(cfg.stage_steps, self.step, rates, cfg.checkpoint_every)
+        self.config = replace(cfg, **dict(zip(STAGE_STEPS, steps, strict=True)))
+        if stage in limit.announced:
+            return None
+        limit.announced.add(stage)
+        share = sum(steps) / max(sum(limit.planned), 1)
+        return (
+            f"time limit: {max(limit.deadline - time.monotonic(), 0) / 60:.1f} min left; "
+            f"stages of {' / '.join(f'{n:,}' for n in steps)} steps "
+            f"({share:.2f} of the config's)"
+        )
 
     # -- files ----------------------------------------------------------------------------
 
@@ -446,20 +473,30 @@ class Trainer:
         on_step: Callable[[StepReport], None],
         on_checkpoint: Callable[[int, Path], None],
         should_stop: Callable[[], bool] = lambda: False,
+        on_message: Callable[[str], None] = lambda text: None,
     ) -> bool:
-        """Train to the end (True) or until should_stop() after a step (False, saved)."""
+        """Train to the end (True) or until should_stop() after a step (False, saved);
+        `on_message` hears what a time limit's fits give."""
         self.out_dir.mkdir(parents=True, exist_ok=True)
         if self.step == 0:
             self.write_config()  # a resumed run's is in its checkpoint (`repair`)
         every = self.config.checkpoint_every
         while self.step < self.config.total_steps:
+            started = time.monotonic()
             report = self.train_step()
             if not all(math.isfinite(v) for v in report.loss.values()):
                 raise FloatingPointError(f"non-finite loss at step {self.step}: {report.loss}")
             on_step(report)
+            if self.time_limit is not None:
+                said = self._fit_to_time(report.stage, time.monotonic() - started)
+                if said:
+                    on_message(said)
             last, stop = self.step == self.config.total_steps, should_stop()
             if last or stop or self.step % every == 0:
+                saving = time.monotonic()
                 on_checkpoint(self.step, self.save())
+                if self.time_limit is not None:
+                    self.time_limit.save_seconds = time.monotonic() - saving
             if stop and not last:
                 return False
         return True
