@@ -90,7 +90,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         "config's 'minutes'. A resumed run takes the steps its checkpoint fitted, and a "
         "limit only when given one here",
     )
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    args.started = time.monotonic()  # a time limit counts from here (loading included)
+    return args
 
 
 class StopFlag:
@@ -233,7 +235,6 @@ def train(trainer: Trainer, progress: Progress, stop: StopFlag) -> int:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    args.started = time.monotonic()  # a time limit counts from here (loading included)
     keep_freed_memory()  # every step takes again what the last one freed (heap.py)
     waiting = choose_openmp_waiting()  # before torch loads OpenMP
     progress = Progress(args.progress_json)
