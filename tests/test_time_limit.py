@@ -85,13 +85,14 @@ def test_unmeasured_stages_are_predicted_from_the_nearest_measured_one():
 def test_cli_ends_by_its_minutes_with_the_steps_it_took(tiny_subject, tmp_path, capsys):
     """A config of 100,000 steps with --minutes 0.25: the run stops by the limit (a generous
     margin: this is not a timing), shortened in every stage, its files agreeing (exit 0),
-    config.json saying the limit and the steps taken; a negative limit is refused."""
+    config.json saying the limit and the steps taken, the last step's progress event the
+    last of the steps as fitted; a negative limit is refused."""
     steps = {"stage1_steps": 40_000, "stage2_steps": 60_000, "checkpoint_every": 50}
     config = str(write_config(tmp_path / "tiny.json", **steps))
     out = tmp_path / "run"
     args = ["--data", str(tiny_subject), "--out", str(out), "--config", config]
     started = time.monotonic()
-    assert main([*args, "--minutes", "0.25"]) == 0
+    assert main([*args, "--minutes", "0.25", "--progress-json"]) == 0
     assert time.monotonic() - started < 15 + 60
     saved = json.loads(RunFolder(out).config.read_text())
     manifest = json.loads(RunFolder(out).manifest.read_text())
@@ -99,6 +100,9 @@ def test_cli_ends_by_its_minutes_with_the_steps_it_took(tiny_subject, tmp_path, 
     taken = (saved["stage1_steps"], saved["stage2_steps"])
     assert 0 < taken[0] < 40_000 and 0 < taken[1] < 60_000
     assert manifest["step"] == manifest["total_steps"] == sum(taken)
-    assert "time limit:" in capsys.readouterr().err
+    said = capsys.readouterr()
+    assert "time limit:" in said.err
+    steps = [e for e in map(json.loads, said.out.splitlines()) if e["event"] == "step"]
+    assert steps[-1]["step"] == steps[-1]["total"] == sum(taken)
     assert main([*args[:3], str(tmp_path / "r2"), *args[4:], "--minutes", "-1"]) == 2
     assert "minutes" in capsys.readouterr().err

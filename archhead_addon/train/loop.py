@@ -487,11 +487,13 @@ class Trainer:
             report = self.train_step()
             if not all(math.isfinite(v) for v in report.loss.values()):
                 raise FloatingPointError(f"non-finite loss at step {self.step}: {report.loss}")
-            on_step(report)
-            if self.time_limit is not None:
+            if self.time_limit is not None:  # the report says the steps as fitted
                 said = self._fit_to_time(report.stage, time.monotonic() - started)
+                total, eta = self.config.total_steps, self.eta()
+                report = replace(report, total=total, eta_seconds=eta)
                 if said:
                     on_message(said)
+            on_step(report)
             last, stop = self.step == self.config.total_steps, should_stop()
             if last or stop or self.step % every == 0:
                 saving = time.monotonic()

@@ -67,5 +67,9 @@ def test_quitting_during_training_saves_a_checkpoint_and_says_how_to_resume(
         "train_resume.py", out, str(tiny_subject), str(cancelled_config), str(run), str(step)
     )
     assert resumed["data"]["first_step"] >= step
+    # with a Time limit the resumed run ended by itself, done, its steps fitted to the limit
+    log = (run / "train.log").read_text()
+    assert '"event": "done"' in log and "time limit:" in log, log[-2000:]
+    assert step <= resumed["data"]["steps"] < 20_000
     starts = re.findall(r'"event": "start", "step": (\d+)', (run / "train.log").read_text())
     assert [int(s) for s in starts] == [0, step]  # the second run began where the first saved

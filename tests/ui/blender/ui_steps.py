@@ -120,10 +120,12 @@ def dolly_camera(scene, head, far: float, near: float, name="ui_dolly"):
     return camera
 
 
-def start_training(ui, subject: Path, config: Path, out: Path, resume: bool = False):
+def start_training(
+    ui, subject: Path, config: Path, out: Path, resume: bool = False, minutes: float = 0.0
+):
     """Train Avatar on a tracked folder (frames/, tracking.npz) with a base config (with
-    `resume`, Resume ticked); returns the run, its backend's pid kept in ui.data for the
-    orphan check."""
+    `resume`, Resume ticked; `minutes`, a Time limit); returns the run, its backend's pid
+    kept in ui.data for the orphan check."""
     from archhead_blender.training import current_run
 
     ui.op(
@@ -133,6 +135,7 @@ def start_training(ui, subject: Path, config: Path, out: Path, resume: bool = Fa
         out_dir=str(out),
         base_config=str(config),
         **({"resume": True} if resume else {}),  # unset otherwise, as the dialog leaves it
+        **({"minutes": minutes} if minutes else {}),
     )
     run = current_run()
     check(run is not None, f"no training run after Train Avatar{' with Resume' * resume}")
