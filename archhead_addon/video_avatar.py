@@ -83,7 +83,8 @@ def track_command(args) -> list[str]:
     return command + (["--progress-json"] if args.progress_json else [])
 
 
-def train_command(args) -> list[str]:
+def train_command(args, minutes: float = 0.0) -> list[str]:
+    """The training stage's command; `minutes`: its time limit (0: none)."""
     command = [sys.executable, "-m", "archhead_addon.train", "--data", str(args.out / DATA)]
     command += ["--out", str(args.out / RUN)]
     if RunFolder(args.out / RUN).state.is_file():
@@ -92,14 +93,24 @@ def train_command(args) -> list[str]:
         command += ["--config", args.preset, "--holdout", "interleaved"]
     if args.flame:
         command += ["--flame", str(args.flame)]
-    if args.minutes:
-        command += ["--minutes", f"{minutes_left(args):.3f}"]
+    if minutes:
+        command += ["--minutes", f"{minutes:.3f}"]
     return command + (["--progress-json"] if args.progress_json else [])
 
 
-def minutes_left(args) -> float:
-    """What the command's time limit leaves (the limit when it has none: 0)."""
-    return args.minutes - (time.monotonic() - args.started) / 60 if args.minutes else 0.0
+def minutes_for_training(minutes: float, started: float) -> float:
+    """What a time limit of `minutes` from `started` (time.monotonic()) leaves to training
+    (0: no limit); ValueError when tracking left less than MIN_TRAINING_MINUTES."""
+    if not minutes:
+        return 0.0
+    left = minutes - (time.monotonic() - started) / 60
+    if left < MIN_TRAINING_MINUTES:
+        raise ValueError(
+            f"tracking took {minutes - left:.1f} min of the {minutes:g}-minute time limit, "
+            "which leaves no time to train; run it again on the same output folder (the "
+            "tracking is kept): the limit counts from that start"
+        )
+    return left
 
 
 def _run_stage(command: list[str]) -> int:
@@ -125,22 +136,19 @@ def run_avatar(args) -> int:
     # (threads.choose_openmp_waiting: about 1.25x a step on quiet cores). The stages inherit it.
     print(f"avatar: {choose_openmp_waiting()}", file=sys.stderr)
     done = stages_done(args.out)
-    for name, finished, command in (
-        ("track", done["tracked"], track_command),
-        ("train", done["trained"], train_command),
-    ):
+    for name, finished in (("track", done["tracked"]), ("train", done["trained"])):
         if finished:
             print(f"avatar: {name}: done earlier, kept", file=sys.stderr)
             continue
-        if name == "train" and args.minutes and minutes_left(args) < MIN_TRAINING_MINUTES:
-            print(
-                f"avatar: tracking took {args.minutes - minutes_left(args):.1f} min of the "
-                f"{args.minutes:g}-minute limit, which leaves no time to train; run the same "
-                "command again (the tracking is kept), the limit counts from its start",
-                file=sys.stderr,
-            )
-            return 1
-        status = _run_stage(command(args))
+        if name == "track":
+            command = track_command(args)
+        else:
+            try:
+                command = train_command(args, minutes_for_training(args.minutes, args.started))
+            except ValueError as exc:
+                print(f"avatar: {exc}", file=sys.stderr)
+                return 1
+        status = _run_stage(command)
         if status:
             print(
                 f"avatar: {name} stopped (exit status {status}); run the same command again "

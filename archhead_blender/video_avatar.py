@@ -32,7 +32,7 @@ from archhead_addon.threads import openmp_waiting_env
 from archhead_addon.track import FRAME_BUDGET
 from archhead_addon.train.dataset import FRAMES_DIR, TRACKING_FILE
 from archhead_addon.train.run_folder import RunFolder
-from archhead_addon.video_avatar import DATA, MIN_TRAINING_MINUTES, RUN, stages_done
+from archhead_addon.video_avatar import DATA, RUN, minutes_for_training, stages_done
 
 from .avatar_objects import head_of, load_avatar
 from .state import STATE
@@ -112,13 +112,7 @@ class VideoAvatarRun:
             return
         settings = training_settings({"holdout": HOLDOUT}, self.preset)
         resume = RunFolder(self.run_dir).state.is_file()
-        left = self.minutes - (time.monotonic() - self.started) / 60 if self.minutes else 0.0
-        if self.minutes and left < MIN_TRAINING_MINUTES:
-            raise ValueError(
-                f"tracking took {self.minutes - left:.1f} min of the {self.minutes:g}-minute "
-                "time limit, which leaves no time to train; run Avatar from Video again on "
-                "the same Output (the tracking is kept): the limit counts from its start"
-            )
+        minutes = minutes_for_training(self.minutes, self.started)  # ValueError: none left
         self.stage = "train"
         self.training = start_training(
             context,
@@ -129,7 +123,7 @@ class VideoAvatarRun:
             resume,
             head.name,
             env=self.waiting,
-            minutes=left,
+            minutes=minutes,
         )
         self.training.resume_hint = self.resume_hint()
 

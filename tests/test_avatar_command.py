@@ -1,6 +1,7 @@
 """`python -m archhead_addon avatar`: a real clip tracked and trained in one command, and
 run again, each finished stage kept."""
 
+import argparse
 import json
 import os
 import signal
@@ -11,6 +12,13 @@ import time
 import pytest
 
 from archhead_addon.track.real_subject import fetch_media
+
+
+def avatar_args(out, **changes) -> argparse.Namespace:
+    """The `avatar` command's arguments, as its parser gives them."""
+    values = {"video": "clip.mp4", "flame": None, "frames": None, "preset": "cpu"}
+    values.update(progress_json=False, frame_budget=900, minutes=0.0)
+    return argparse.Namespace(out=out, **{**values, **changes})
 
 
 @pytest.mark.slow
@@ -47,15 +55,13 @@ def test_video_to_avatar_stopped_resumed_then_kept(tmp_path):
 def test_a_stopped_run_resumes_and_a_bad_video_names_the_stage(tmp_path):
     from archhead_addon.video_avatar import stages_done, train_command
 
-    class Args:
-        out, video, flame, frames, preset, progress_json = tmp_path, None, None, None, "cpu", False
-        minutes = 0.0
+    args = avatar_args(tmp_path)
 
     assert stages_done(tmp_path) == {"tracked": False, "trained": False}
-    assert "--resume" not in train_command(Args)
+    assert "--resume" not in train_command(args)
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "train_state.pt").write_bytes(b"")
-    assert "--resume" in train_command(Args) and "--config" not in train_command(Args)
+    assert "--resume" in train_command(args) and "--config" not in train_command(args)
     bad = tmp_path / "not_a_video.mp4"
     bad.write_bytes(b"no video here")
     done = subprocess.run(
@@ -74,16 +80,7 @@ def test_both_stages_wait_as_chosen_before_tracking(tmp_path, monkeypatch):
     tracker's own load as other jobs' and let its threads sleep on quiet cores."""
     from archhead_addon import video_avatar
 
-    class Args:
-        out, video, flame, frames, preset, progress_json = (
-            tmp_path,
-            "clip.mp4",
-            None,
-            None,
-            "cpu",
-            False,
-        )
-        frame_budget, minutes = 900, 0.0
+    args = avatar_args(tmp_path)
 
     for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
         monkeypatch.delenv(name, raising=False)
@@ -97,7 +94,7 @@ def test_both_stages_wait_as_chosen_before_tracking(tmp_path, monkeypatch):
         return 0
 
     monkeypatch.setattr(video_avatar, "_run_stage", stage)
-    assert video_avatar.run_avatar(Args) == 0
+    assert video_avatar.run_avatar(args) == 0
     assert seen["track"] == seen["train"]
     assert seen["train"]["GOMP_SPINCOUNT"] and seen["train"]["OMP_WAIT_POLICY"] is None
 
@@ -107,16 +104,7 @@ def test_training_gets_what_tracking_left_of_the_time_limit(tmp_path, monkeypatc
     left and the command stops before training (status 1), saying so; -1 is refused."""
     from archhead_addon import video_avatar
 
-    class Args:
-        out, video, flame, frames, preset, progress_json = (
-            tmp_path,
-            "clip.mp4",
-            None,
-            None,
-            "cpu",
-            False,
-        )
-        frame_budget, minutes = 900, 30.0
+    args = avatar_args(tmp_path, minutes=30.0)
 
     tracking = {"minutes": 10.0}
     given = []
@@ -125,15 +113,15 @@ def test_training_gets_what_tracking_left_of_the_time_limit(tmp_path, monkeypatc
         if "archhead_addon.train" in command:
             given.append(float(command[command.index("--minutes") + 1]))
         else:
-            Args.started -= 60 * tracking["minutes"]  # as if tracking had taken that long
+            args.started -= 60 * tracking["minutes"]  # as if tracking had taken that long
         return 0
 
     monkeypatch.setattr(video_avatar, "_run_stage", stage)
-    assert video_avatar.run_avatar(Args) == 0
+    assert video_avatar.run_avatar(args) == 0
     assert given == [pytest.approx(20.0, abs=0.05)]
     tracking["minutes"] = 29.5
-    assert video_avatar.run_avatar(Args) == 1 and len(given) == 1
+    assert video_avatar.run_avatar(args) == 1 and len(given) == 1
     assert "leaves no time to train" in capsys.readouterr().err
-    Args.minutes = -1.0
-    assert video_avatar.run_avatar(Args) == 2
+    args.minutes = -1.0
+    assert video_avatar.run_avatar(args) == 2
     assert "--minutes" in capsys.readouterr().err

@@ -10,8 +10,8 @@ predicted. A stage that has not run yet is predicted from the ones before it
 (`predicted_rates`); the fits correct the predictions as the stages come, and the last stage
 takes up what they missed. The schedule follows the fitted lengths (each stage's
 learning rates still decay to `lr_final_ratio` by its end); so a run with a limit does not
-repeat step for step, as one without does, and a resumed one is fitted afresh to its own
-limit, counted from its own start.
+repeat step for step, as one without does. A resumed run keeps the steps its checkpoint
+fitted, unless given a limit of its own (train/__main__.py), counted from its own start.
 """
 
 from __future__ import annotations
@@ -59,7 +59,6 @@ def fitted_steps(
     starts = [sum(current[:k]) for k in stages]
     ran = [min(max(done - starts[k], 0), current[k]) for k in stages]
     fixed = {k: current[k] for k in stages if not planned[k] or done >= starts[k] + current[k]}
-    factor = 1.0
     while True:
         free = [k for k in stages if k not in fixed]
         cost = sum(planned[k] * rates[k + 1] for k in free)
