@@ -123,14 +123,17 @@ def stage2_lods(n: int, u, end: float | None = None) -> list[float]:
     return lods if end is None else lods[:-1] + [end]
 
 
-def stage2_cost_ratio(s_max: int, s_min: int, n: int) -> float:
+def stage2_cost_ratio(s_max: int, s_min: int, n: int, perceptual: bool = True) -> float:
     """A stage-2 step of n levels, as a multiple of a stage-1 step, until stage 2 times its
-    own. About half of a CPU render's time does not grow with the Gaussians (ST-LPIPS, the
-    resample, the loss); the other half scales with the count, whose mean over a random
-    level is (1 + r + r^2) / 3 of LOD 0's, r = s_min / s_max. Against the Pexels clip's full
-    runs at 128 / 32: 0.79 for one level (measured 0.83), 2.38 for three (2.06)."""
+    own. Part of a CPU render's time does not grow with the Gaussians (the resample, the
+    loss, ST-LPIPS when on): about half with the perceptual term (2.38 for three levels at
+    128 / 32, measured 2.06), 0.3 without; the rest scales with the count, whose mean over a
+    random level is (1 + r + r^2) / 3 of LOD 0's, r = s_min / s_max. The `cpu` preset (one
+    level, no perceptual term): 0.61, measured 0.62 and 0.55 in two runs on the Pexels clip
+    (2026-11-29; 0.72 before the term's share was told apart)."""
     r = s_min / s_max
-    return n * (0.5 + 0.5 * (1 + r + r * r) / 3)
+    fixed = 0.5 if perceptual else 0.3
+    return n * (fixed + (1 - fixed) * (1 + r + r * r) / 3)
 
 
 class Trainer:
@@ -385,14 +388,20 @@ class Trainer:
             self.refinement.requires_grad_(stage < 3)
 
     def eta(self) -> float:
-        cfg, a = self.config, self.avatar.config
-        rates = predicted_rates(self._rate, stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step))
+        cfg, rates = self.config, self._predicted(self._rate)
         seconds, start = 0.0, 0
         for stage, steps in enumerate(cfg.stage_steps, start=1):
             left = max(start + steps - max(start, self.step), 0)
             start += steps
             seconds += left * (rates[stage] or 0.0)
         return seconds
+
+    def _predicted(self, rates: dict) -> dict:
+        """`rates` (seconds a step by stage, None where not measured) with the missing ones
+        predicted (time_limit.predicted_rates)."""
+        a, cfg = self.avatar.config, self.config
+        ratio = stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step, cfg.loss.lpips > 0)
+        return predicted_rates(rates, ratio)
 
     # -- time limit -----------------------------------------------------------------------
 
@@ -406,12 +415,12 @@ class Trainer:
     def _fit_to_time(self, stage: int, seconds: float) -> str | None:
         """After a step of `stage` that took `seconds`, refit the steps when due
         (TimeLimit.observe); what the stage's first fit gives, said."""
-        limit, cfg, a = self.time_limit, self.config, self.avatar.config
+        limit, cfg = self.time_limit, self.config
         if not limit.observe(stage, seconds):
             return None
-        ratio = stage2_cost_ratio(a.s_max, a.s_min, cfg.lods_per_step)
-        rates = predicted_rates(limit.rates(), ratio)
-        steps = limit.fit(cfg.stage_steps, self.step, rates, cfg.checkpoint_every)
+        steps = limit.fit(
+            cfg.stage_steps, self.step, self._predicted(limit.rates()), cfg.checkpoint_every
+        )
         if steps != cfg.stage_steps:  # (a new config checks every value: 0.16 ms)
             self.config = replace(cfg, **dict(zip(STAGE_STEPS, steps, strict=True)))
         if stage in limit.announced:

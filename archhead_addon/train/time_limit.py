@@ -17,10 +17,14 @@ fitted, unless given a limit of its own (train/__main__.py), counted from its ow
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 WARM_UP = 5  # a stage's first steps here, not timed: they build tables and caches
 FIT_AFTER = 20  # steps of a stage run here before the steps are fitted
+# A stage's step time is the mean of its latest steps: its first epoch costs more (each
+# frame's pose computed once: a `cpu` stage-1 step 150 ms at first, 114 ms after).
+RECENT = 200
 # A step of stage 3 / 4 against a stage-2 one: the Pexels clip's `cpu` run on the 2-core
 # machine (53.0 and 32.0 ms against 68.9: docs/quality.md); the refits correct them.
 LATER_STAGE_COST = {3: 0.77, 4: 0.46}
@@ -80,7 +84,8 @@ class TimeLimit:
     deadline: float
     planned: tuple[int, ...]
     save_seconds: float = 0.0  # the last checkpoint's writing time
-    timed: dict = field(default_factory=dict)  # stage: [seconds, steps] run in this process
+    timed: dict = field(default_factory=dict)  # stage: its latest step times in this process
+    started: dict = field(default_factory=dict)  # stage: steps run in this process
     announced: set = field(default_factory=set)  # stages whose first fit was said
 
     @classmethod
@@ -89,18 +94,18 @@ class TimeLimit:
 
     def observe(self, stage: int, seconds: float) -> bool:
         """One more step of `stage` took `seconds`; whether to fit now: after every step
-        from the stage's FIT_AFTER-th here (a fit costs nothing, and the stage's mean step
-        time, its first WARM_UP steps left out, steadies as it goes)."""
-        timed = self.timed.setdefault(stage, [0.0, -WARM_UP])
-        timed[1] += 1
-        if timed[1] > 0:
-            timed[0] += seconds
-        return timed[1] >= FIT_AFTER - WARM_UP
+        from the stage's FIT_AFTER-th here (a fit costs nothing, and the stage's step time,
+        its first WARM_UP steps left out, steadies as it goes)."""
+        n = self.started[stage] = self.started.get(stage, 0) + 1
+        if n > WARM_UP:
+            self.timed.setdefault(stage, deque(maxlen=RECENT)).append(seconds)
+        return n >= FIT_AFTER
 
     def rates(self) -> dict:
-        """The mean seconds a step of each stage timed here (None: not timed)."""
+        """Seconds a step of each stage timed here, the mean of its RECENT latest (None:
+        not timed)."""
         return {
-            k: self.timed[k][0] / self.timed[k][1] if self.timed.get(k, (0, 0))[1] > 0 else None
+            k: sum(self.timed[k]) / len(self.timed[k]) if k in self.timed else None
             for k in (1, 2, 3, 4)
         }
 
