@@ -71,5 +71,5 @@ def test_quitting_during_training_saves_a_checkpoint_and_says_how_to_resume(
     log = (run / "train.log").read_text()
     assert '"event": "done"' in log and "time limit:" in log, log[-2000:]
     assert step <= resumed["data"]["steps"] < 20_000
-    starts = re.findall(r'"event": "start", "step": (\d+)', (run / "train.log").read_text())
+    starts = re.findall(r'"event": "start", "step": (\d+)', log)
     assert [int(s) for s in starts] == [0, step]  # the second run began where the first saved
