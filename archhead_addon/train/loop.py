@@ -123,7 +123,7 @@ def stage2_lods(n: int, u, end: float | None = None) -> list[float]:
     return lods if end is None else lods[:-1] + [end]
 
 
-def stage2_cost_ratio(s_max: int, s_min: int, n: int, perceptual: bool = True) -> float:
+def stage2_cost_ratio(s_max: int, s_min: int, n: int, perceptual: bool) -> float:
     """A stage-2 step of n levels, as a multiple of a stage-1 step, until stage 2 times its
     own. Part of a CPU render's time does not grow with the Gaussians (the resample, the
     loss, ST-LPIPS when on): about half with the perceptual term (2.38 for three levels at

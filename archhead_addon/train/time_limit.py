@@ -85,7 +85,7 @@ class TimeLimit:
     planned: tuple[int, ...]
     save_seconds: float = 0.0  # the last checkpoint's writing time
     timed: dict = field(default_factory=dict)  # stage: its latest step times in this process
-    started: dict = field(default_factory=dict)  # stage: steps run in this process
+    steps_run: dict = field(default_factory=dict)  # stage: steps run in this process
     announced: set = field(default_factory=set)  # stages whose first fit was said
 
     @classmethod
@@ -96,7 +96,7 @@ class TimeLimit:
         """One more step of `stage` took `seconds`; whether to fit now: after every step
         from the stage's FIT_AFTER-th here (a fit costs nothing, and the stage's step time,
         its first WARM_UP steps left out, steadies as it goes)."""
-        n = self.started[stage] = self.started.get(stage, 0) + 1
+        n = self.steps_run[stage] = self.steps_run.get(stage, 0) + 1
         if n > WARM_UP:
             self.timed.setdefault(stage, deque(maxlen=RECENT)).append(seconds)
         return n >= FIT_AFTER
