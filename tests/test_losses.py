@@ -60,6 +60,43 @@ def test_parts_term_counts_only_masked_pixels_averaged_over_the_whole_image():
     )
 
 
+@pytest.mark.parametrize("delta", [0.1, 1.0])
+def test_image_terms_by_the_kernel_match_the_torch_operations(delta):
+    """On float32 CPU images the two image terms take the splat kernel's one pass: the same
+    values and gradients as `huber` and `parts_huber`, both sides of delta, any threads."""
+    gen = torch.Generator().manual_seed(0)
+    target = torch.rand(96, 80, 3, generator=gen)
+    pred = (target + 0.3 * torch.randn(96, 80, 3, generator=gen)).clamp(0, 1)
+    parts = (torch.rand(96, 80, generator=gen) > 0.7).float() * torch.rand(96, 80, generator=gen)
+    loss = TrainingLoss(LossWeights(huber_delta=delta), threads=2)
+    weights = (0.7, 20.0)
+    results = []
+    for terms in (
+        lambda p: loss.image_terms(p, target, parts),
+        lambda p: (huber(p, target, delta), parts_huber(p, target, parts, delta)),
+        lambda p: TrainingLoss(LossWeights(huber_delta=delta), threads=1).image_terms(
+            p, target, parts
+        ),
+    ):
+        leaf = pred.clone().requires_grad_(True)
+        values = terms(leaf)
+        (weights[0] * values[0] + weights[1] * values[1]).backward()
+        results.append(([float(v.detach()) for v in values], leaf.grad))
+    (kernel, k_grad), (ops, o_grad), (one_thread, t_grad) = results
+    assert kernel == pytest.approx(ops, rel=1e-5) and min(ops) > 0
+    assert kernel == one_thread and torch.equal(k_grad, t_grad)
+    np.testing.assert_allclose(k_grad.numpy(), o_grad.numpy(), rtol=1e-5, atol=1e-12)
+    if delta < 1:  # some differences past delta: the linear side's gradient
+        assert ((pred - target).abs() > delta).any()
+
+
+def test_image_terms_of_other_dtypes_take_the_torch_operations():
+    image = torch.rand(4, 5, 3, dtype=torch.float64)
+    parts = torch.ones(4, 5, dtype=torch.float64)
+    rgb, part = TrainingLoss(LossWeights()).image_terms(image, image * 0.5, parts)
+    assert rgb.dtype == torch.float64 and float(rgb) == pytest.approx(float(part))
+
+
 def test_offset_and_scale_terms_are_mean_l2_norms():
     g = gaussians(
         offsets=[[3.0, 4.0, 0.0], [0.0, 0.0, 0.0]], scales=[[1.0, 2.0, 2.0], [0.0, 0.0, 1.0]]

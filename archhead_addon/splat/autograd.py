@@ -1,4 +1,5 @@
-"""torch.autograd.Function around the CPU kernel (training on machines without CUDA)."""
+"""torch.autograd.Functions around the CPU kernel (training on machines without CUDA): the
+splat, the sRGB encoding of its image and the loss's two image terms."""
 
 from __future__ import annotations
 
@@ -48,3 +49,39 @@ def splat_cpu(frame: SplatFrame, settings: kernel.RasterSettings):
     """Differentiable CPU render of a frame of tensors (RGB in sh): (rgb (H,W,3), alpha
     (H,W), depth_acc (H,W))."""
     return SplatCPU.apply(settings, *(getattr(frame, name) for name in FIELDS))
+
+
+class SrgbEncodeCPU(torch.autograd.Function):
+    """colour_space.linear_to_srgb of a float32 CPU tensor by the kernel, which gives the
+    derivative with the values: the backward is one product."""
+
+    @staticmethod
+    def forward(ctx, x, num_threads: int):
+        y, slope = kernel.srgb_encode(x.detach().numpy(), num_threads)
+        ctx.save_for_backward(torch.from_numpy(slope))
+        return torch.from_numpy(y)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad):
+        (slope,) = ctx.saved_tensors
+        return grad * slope, None
+
+
+class ImageHuberCPU(torch.autograd.Function):
+    """(Huber(pred, target), Huber(pred B, target B)) of float32 CPU images by the kernel
+    (kernel.image_huber), which gives the gradients with the values. target and parts
+    take no gradient."""
+
+    @staticmethod
+    def forward(ctx, pred, target, parts, delta: float, num_threads: int):
+        host = [t.detach().numpy() for t in (pred, target, parts)]
+        terms, g_rgb, g_parts = kernel.image_huber(*host, delta, num_threads)
+        ctx.save_for_backward(torch.from_numpy(g_rgb), torch.from_numpy(g_parts))
+        return tuple(torch.tensor(t, dtype=torch.float32) for t in terms)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_rgb, g_parts):
+        d_rgb, d_parts = ctx.saved_tensors
+        return d_rgb * g_rgb + d_parts * g_parts, None, None, None, None

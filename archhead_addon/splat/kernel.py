@@ -54,7 +54,7 @@ class _Params(ctypes.Structure):
     ]
 
 
-_ABI_VERSION = 4
+_ABI_VERSION = 5
 _lib: ctypes.CDLL | None = None
 SIMD = {"auto": -1, "baseline": 0, "avx2": 1, "avx512": 2}  # AH_ISA_* in csrc/splat.h
 SIMD_ENV = "ARCHHEAD_SPLAT_SIMD"
@@ -133,6 +133,10 @@ def library() -> ctypes.CDLL:
     i64p = ctypes.POINTER(ctypes.c_int64)
     lib.ah_mesh_rasterize.argtypes = [i64, i64, f64, f64, i64p, i32, i32, i64p, f64, cp, i32]
     lib.ah_mesh_rasterize.restype = ctypes.c_int
+    lib.ah_srgb_encode.argtypes = [i64, _F32, _F32, _F32, i32]
+    lib.ah_srgb_encode.restype = None
+    lib.ah_image_huber.argtypes = [i64, i32, _F32, _F32, _F32, ctypes.c_float, f64, _F32, _F32, i32]
+    lib.ah_image_huber.restype = None
     _lib = lib
     set_simd(os.environ.get(SIMD_ENV, "auto"))
     return lib
@@ -282,6 +286,42 @@ def rasterize_mesh(
     if rc != 0:
         _raise(err)
     return face_at, bary
+
+
+def srgb_encode(x: np.ndarray, num_threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(y, dy/dx) of colour_space.linear_to_srgb on float32 `x`, each of its shape, in one
+    pass (the derivative 0 where x lies outside (0, 1), as torch.clamp's)."""
+    x = np.ascontiguousarray(x, np.float32)
+    y, slope = np.empty_like(x), np.empty_like(x)
+    threads = thread_count(num_threads, None, "num_threads")
+    library().ah_srgb_encode(x.size, _ptr(x), _ptr(y), _ptr(slope), threads)
+    return y, slope
+
+
+def image_huber(
+    pred: np.ndarray, target: np.ndarray, parts: np.ndarray, delta: float, num_threads: int = 0
+) -> tuple[tuple[float, float], np.ndarray, np.ndarray]:
+    """Training's two image terms (train/losses.py) in one pass: ((Huber(pred, target),
+    Huber(pred B, target B)), the gradient of each with respect to `pred`). pred and target
+    (H,W,C) float32, parts B (H,W)."""
+    pred = np.ascontiguousarray(pred, np.float32)
+    target = np.ascontiguousarray(target, np.float32)
+    parts = np.ascontiguousarray(parts, np.float32)
+    shapes_fit = pred.ndim == 3 and target.shape == pred.shape and parts.shape == pred.shape[:2]
+    if not (shapes_fit and 1 <= pred.shape[2] <= 4):
+        raise ValueError(
+            f"image_huber: pred and target (H,W,C), C 1-4, and parts (H,W), got {pred.shape}, "
+            f"{target.shape}, {parts.shape}"
+        )
+    terms = np.zeros(2, np.float64)
+    g_rgb, g_parts = np.empty_like(pred), np.empty_like(pred)
+    threads = thread_count(num_threads, None, "num_threads")
+    library().ah_image_huber(
+        parts.size, pred.shape[2], _ptr(pred), _ptr(target), _ptr(parts), delta,
+        terms.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), _ptr(g_rgb), _ptr(g_parts),
+        threads,
+    )  # fmt: skip
+    return (float(terms[0]), float(terms[1])), g_rgb, g_parts
 
 
 _STATS = ("visible", "intersections", "project_ms", "bin_ms", "composite_ms", "bwd_composite_ms",

@@ -27,6 +27,7 @@ import torch.nn.functional as F
 
 from ..avatar.config import ROD_RATIO
 from ..avatar.gaussians import Gaussians
+from ..splat.autograd import ImageHuberCPU
 from .config import LossWeights
 
 
@@ -78,8 +79,8 @@ def scale_weight(weights: LossWeights, lod: float) -> float:
 class TrainingLoss:
     """Eq. 6 for one render; `perceptual` is an ST-LPIPS module (or None to leave it out)."""
 
-    def __init__(self, weights: LossWeights, perceptual=None):
-        self.weights, self.perceptual = weights, perceptual
+    def __init__(self, weights: LossWeights, perceptual=None, threads: int = 0):
+        self.weights, self.perceptual, self.threads = weights, perceptual, threads
 
     def __call__(self, *args, **kwargs) -> tuple[torch.Tensor, dict[str, float]]:
         """`terms`, with the terms as floats."""
@@ -103,12 +104,11 @@ class TrainingLoss:
         `reference`, the target's `perceptual_reference`, saves computing it again."""
         w = self.weights
         lpips_weight = w.lpips if lpips_weight is None else lpips_weight
-        terms = {
-            "rgb": huber(pred, target, w.huber_delta),
-            "parts": parts_huber(pred, target, parts, w.huber_delta),
-            "offset": offset_norm(gaussians.offsets),
-            "scale": scale_norm(gaussians.log_scales),
-        }
+        terms = dict(
+            zip(("rgb", "parts"), self.image_terms(pred, target, parts), strict=True),
+            offset=offset_norm(gaussians.offsets),
+            scale=scale_norm(gaussians.log_scales),
+        )
         total = (
             terms["rgb"]
             + w.parts * terms["parts"]
@@ -128,6 +128,15 @@ class TrainingLoss:
             total = total + lpips_weight * terms["lpips"]
         terms["total"] = total
         return total, {k: v.detach() for k, v in terms.items()}
+
+    def image_terms(self, pred, target, parts) -> tuple[torch.Tensor, torch.Tensor]:
+        """(Huber(I, Î), Huber(I·B, Î·B)): float32 CPU images by the splat kernel in one
+        pass (ImageHuberCPU), others by `huber` and `parts_huber`."""
+        delta = self.weights.huber_delta
+        images = (pred, target, parts)
+        if all(t.device.type == "cpu" and t.dtype == torch.float32 for t in images):
+            return ImageHuberCPU.apply(*images, delta, self.threads)
+        return huber(pred, target, delta), parts_huber(pred, target, parts, delta)
 
     def perceptual_reference(self, target: torch.Tensor):
         """The perceptual term's features of a target image (H,W,3), to share between the

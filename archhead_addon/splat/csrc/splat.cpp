@@ -297,6 +297,52 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
 
 }  // namespace
 
+namespace ah {
+
+// c^(5/12) for c in [0.0031308, 1], as training's sRGB encoding needs it: a first guess from
+// c's bits, then Newton's method on y^12 = c^5 (error 3 % -> 5e-3 -> 1.4e-4 -> 1e-7 -> float
+// round-off). Plain arithmetic, so that the compiler vectorizes the loop, where std::pow
+// (a call per value) took 1.7 ms for a 256^2 image.
+inline float srgb_root(float c) {
+    constexpr int32_t kOne = 0x3f800000;  // the bits of 1.0f
+    int32_t bits;
+    std::memcpy(&bits, &c, sizeof bits);
+    bits = kOne + int32_t(float(bits - kOne) * (5.0f / 12.0f));
+    float y;
+    std::memcpy(&y, &bits, sizeof y);
+    const float c2 = c * c, c5 = c2 * c2 * c;
+#pragma GCC unroll 4
+    for (int k = 0; k < 4; ++k) {
+        const float y2 = y * y, y4 = y2 * y2, y11 = y4 * y4 * y2 * y;
+        y = y * (11.0f / 12.0f) + c5 / (12.0f * y11);
+    }
+    return y;
+}
+
+// m ? a : b by the bits: a ternary between two computed floats is control flow to GCC
+// (either side might trap), which keeps the loop from vectorizing.
+inline float pick(bool m, float a, float b) {
+    int32_t ia, ib;
+    std::memcpy(&ia, &a, sizeof ia);
+    std::memcpy(&ib, &b, sizeof ib);
+    const int32_t mask = -int32_t(m), bits = (ia & mask) | (ib & ~mask);
+    float out;
+    std::memcpy(&out, &bits, sizeof out);
+    return out;
+}
+
+// torch's huber_loss of one difference, and its derivative
+inline float huber(float d, float delta) {
+    const float a = d < 0.0f ? -d : d;
+    return pick(a < delta, 0.5f * d * d, delta * (a - 0.5f * delta));
+}
+
+inline float huber_slope(float d, float delta) {
+    return pick(d <= -delta, -delta, pick(d >= delta, delta, d));
+}
+
+}  // namespace ah
+
 extern "C" {
 
 int32_t ah_splat_abi_version(void) { return AH_SPLAT_ABI_VERSION; }
@@ -422,6 +468,79 @@ int ah_mesh_rasterize(int64_t n_vertices, int64_t n_faces, const double* xy, con
         return -1;
     }
     return 0;
+}
+
+void ah_srgb_encode(int64_t n, const float* x, float* y, float* slope, int32_t num_threads) {
+    // torch's pow, where and their backward passes took 11 ms of a 60-110 ms training step
+    // on a 256^2 image (docs/training_profile.md); this is one pass
+    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+#pragma omp parallel for num_threads(threads) schedule(static) if (n >= 16384)
+    for (int64_t i = 0; i < n; ++i) {
+        const float v = x[i];
+        const float inside = float((v > 0.0f) & (v < 1.0f));  // as torch.clamp: 0 at both ends
+        const float c = ah::pick(v > 1.0f, 1.0f, ah::pick(v < 0.0f, 0.0f, v));  // NaN stays NaN
+        const bool low = c <= 0.0031308f;
+        const float root = ah::srgb_root(ah::pick(low, 1.0f, c));
+        y[i] = ah::pick(low, 12.92f * c, 1.055f * root - 0.055f);
+        slope[i] = inside * ah::pick(low, 12.92f, (1.055f / 2.4f) * root / c);
+    }
+}
+
+void ah_image_huber(int64_t n_pixels, int32_t channels, const float* pred, const float* target,
+                    const float* parts, float delta, double* terms, float* grad_rgb,
+                    float* grad_parts, int32_t num_threads) {
+    // torch's two huber_loss calls and the products before them took several ms of a
+    // training step (docs/training_profile.md). Blocks of kPixels pixels: the values and
+    // gradients in a loop that vectorizes (no sum in it: GCC keeps a float sum's order), then
+    // each block's sums in kLanes lanes, the blocks' added in order: the same bits at any
+    // thread count.
+    constexpr int64_t kPixels = 1024, kLanes = 8, kMaxChannels = 4;
+    if (channels < 1 || channels > kMaxChannels) {  // kernel.image_huber refuses them first
+        terms[0] = terms[1] = NAN;
+        return;
+    }
+    const int64_t n = n_pixels * channels, blocks = (n_pixels + kPixels - 1) / kPixels;
+    std::vector<double> sums(2 * blocks, 0.0);
+    const float scale = 1.0f / float(n);
+    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+#pragma omp parallel for num_threads(threads) schedule(static) if (blocks > 1)
+    for (int64_t k = 0; k < blocks; ++k) {
+        const int64_t pixels = std::min(n_pixels - k * kPixels, kPixels);
+        const int64_t first = k * kPixels * channels, count = pixels * channels;
+        // whole lanes: the values past `count` stay 0
+        float weight[kPixels * kMaxChannels], rgb[kPixels * kMaxChannels] = {},
+                                              part[kPixels * kMaxChannels] = {};
+        for (int64_t q = 0; q < pixels; ++q)
+            for (int32_t c = 0; c < channels; ++c) weight[q * channels + c] = parts[k * kPixels + q];
+        const float *p = pred + first, *t = target + first;
+        float *g_rgb = grad_rgb + first, *g_part = grad_parts + first;
+        for (int64_t i = 0; i < count; ++i) {
+            const float b = weight[i], d = p[i] - t[i];
+            const float db = p[i] * b - t[i] * b;  // as torch: each image masked first
+            rgb[i] = ah::huber(d, delta);
+            part[i] = ah::huber(db, delta);
+            g_rgb[i] = ah::huber_slope(d, delta) * scale;
+            g_part[i] = ah::huber_slope(db, delta) * b * scale;
+        }
+        double lane_rgb[kLanes] = {}, lane_part[kLanes] = {};
+        for (int64_t i = 0; i < count; i += kLanes) {
+            for (int64_t j = 0; j < kLanes; ++j) {
+                lane_rgb[j] += rgb[i + j];
+                lane_part[j] += part[i + j];
+            }
+        }
+        for (int64_t j = 0; j < kLanes; ++j) {
+            sums[2 * k] += lane_rgb[j];
+            sums[2 * k + 1] += lane_part[j];
+        }
+    }
+    double rgb = 0.0, part = 0.0;
+    for (int64_t k = 0; k < blocks; ++k) {
+        rgb += sums[2 * k];
+        part += sums[2 * k + 1];
+    }
+    terms[0] = rgb / double(n);
+    terms[1] = part / double(n);
 }
 
 }  // extern "C"

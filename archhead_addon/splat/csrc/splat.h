@@ -21,7 +21,7 @@
 extern "C" {
 #endif
 
-#define AH_SPLAT_ABI_VERSION 4
+#define AH_SPLAT_ABI_VERSION 5
 #define AH_LOG_SCALE_MIN -23.0f  // scale 1e-10
 #define AH_LOG_SCALE_MAX 11.5f   // scale ~1e5
 
@@ -98,6 +98,23 @@ int32_t ah_splat_set_ellipse_steps(int32_t on);
 int ah_mesh_rasterize(int64_t n_vertices, int64_t n_faces, const double* xy, const double* z,
                       const int64_t* faces, int32_t width, int32_t height, int64_t* face_at,
                       double* bary, char* err, int32_t err_len);
+
+// Not a splat: the sRGB encoding of a linear image as training takes it (colour_space.py's
+// linear_to_srgb: x clamped to [0, 1], 12.92 x up to 0.0031308, 1.055 x^(1/2.4) - 0.055
+// above) and its derivative, so that the backward pass is one product. Writes y and slope, n
+// values each: dy/dx, 0 where x lies outside (0, 1) as torch.clamp's gradient is.
+// num_threads <= 0: the OpenMP default (both functions here).
+void ah_srgb_encode(int64_t n, const float* x, float* y, float* slope, int32_t num_threads);
+
+// Not a splat: training's two image terms in one pass (train/losses.py), Huber(pred, target)
+// and Huber(pred * B, target * B), B one weight a pixel (`parts`), 1-4 channels: each the
+// mean over the n_pixels * channels values of torch's huber_loss (0.5 d^2 where |d| < delta,
+// delta (|d| - 0.5 delta) beyond), and their gradients with respect to pred. Writes terms[2]
+// (summed in a fixed order: the same bits at any thread count), grad_rgb and grad_parts
+// (n_pixels * channels each).
+void ah_image_huber(int64_t n_pixels, int32_t channels, const float* pred, const float* target,
+                    const float* parts, float delta, double* terms, float* grad_rgb,
+                    float* grad_parts, int32_t num_threads);
 
 int32_t ah_splat_abi_version(void);
 
