@@ -11,7 +11,7 @@ import torch.nn.functional as F
 
 from archhead_addon.avatar.bicubic import resize
 from archhead_addon.avatar.lod import blend_weights, resolution_for_lod
-from archhead_addon.avatar.resample import resample_plan, texel_features
+from archhead_addon.avatar.resample import resample_plan, texel_features, texel_features_torch
 
 
 def test_lod_to_resolution():
@@ -150,3 +150,40 @@ def test_a_level_at_the_target_size_is_read_as_it_is():
     texel = torch.tensor([0, 7, 41, 1599])
     out = texel_features({"40": f}, plan, texel)
     assert torch.equal(out, f.reshape(4, -1)[:, texel].T)
+
+
+@pytest.mark.parametrize("size", [32, 77, 128])
+def test_the_kernels_resample_matches_the_matrix_products(size, monkeypatch):
+    """Float32 CPU levels go through the splat kernel's taps (csrc/resample.hpp): the same
+    field and gradients as the dense products, the same bits at any thread count, and no
+    gradient for a level that takes none (stage 4 freezes all but the sparsest)."""
+    from archhead_addon.threads import thread_count
+
+    levels, tau, c = (128, 64, 32), 0.35, 64
+    rng = np.random.default_rng(size)
+    texel = torch.from_numpy(rng.permutation(size * size)[: size * size * 9 // 10])
+    features = {
+        str(s): torch.from_numpy(rng.normal(size=(c, s, s)).astype(np.float32)).requires_grad_()
+        for s in levels
+    }
+    upstream = torch.from_numpy(rng.normal(size=(len(texel), c)).astype(np.float32))
+    plan = resample_plan(levels, size, tau, "cpu")
+
+    def run(fn):
+        out = fn(features, plan, texel)
+        return out.detach(), torch.autograd.grad(out, list(features.values()), upstream)
+
+    out, grads = run(texel_features)
+    ref, ref_grads = run(texel_features_torch)
+    torch.testing.assert_close(out, ref, atol=3e-6, rtol=1e-5)
+    for g, r in zip(grads, ref_grads, strict=True):
+        torch.testing.assert_close(g, r, atol=3e-5, rtol=1e-5)
+    if thread_count(0) > 1:  # the kernel's default threads follow OMP_NUM_THREADS
+        monkeypatch.setenv("OMP_NUM_THREADS", "1")
+        one, one_grads = run(texel_features)
+        assert torch.equal(one, out)
+        assert all(torch.equal(a, b) for a, b in zip(one_grads, grads, strict=True))
+    features["128"].requires_grad_(False)
+    out = texel_features(features, plan, texel)
+    grads = torch.autograd.grad(out, [features["32"], features["64"]], upstream)
+    assert all(g.abs().sum() > 0 for g in grads)

@@ -137,6 +137,11 @@ def library() -> ctypes.CDLL:
     lib.ah_srgb_encode.restype = None
     lib.ah_image_huber.argtypes = [i64, i32, _F32, _F32, _F32, ctypes.c_float, f64, _F32, _F32, i32]
     lib.ah_image_huber.restype = None
+    i32p, fl = ctypes.POINTER(ctypes.c_int32), ctypes.c_float
+    lib.ah_resample_forward.argtypes = [i32, i32, _F32, i32, i32p, _F32, fl, i64, i64p, _F32, i32]
+    lib.ah_resample_forward.restype = None
+    lib.ah_resample_backward.argtypes = [i32, i32, i32, i32p, _F32, fl, i64, i64p, _F32, _F32, i32]
+    lib.ah_resample_backward.restype = None
     _lib = lib
     set_simd(os.environ.get(SIMD_ENV, "auto"))
     return lib
@@ -322,6 +327,45 @@ def image_huber(
         threads,
     )  # fmt: skip
     return (float(terms[0]), float(terms[1])), g_rgb, g_parts
+
+
+def _resample_args(f_shape, size, taps, texel):
+    c, s = f_shape[0], f_shape[1]
+    if len(f_shape) != 3 or f_shape[2] != s or texel.ndim != 1:
+        raise ValueError(f"resample: a level (C, s, s) and texels (N,), got {f_shape}")
+    index, weight = (None, None) if taps is None else taps
+    if (index is None) != (s == size) or (index is not None and index.shape != (size, 4)):
+        raise ValueError(f"resample: taps (size, 4) for s {s} != size {size}, none at s == size")
+    i32p = ctypes.POINTER(ctypes.c_int32)
+    ptrs = (None, None) if index is None else (index.ctypes.data_as(i32p), _ptr(weight))
+    return c, s, ptrs
+
+
+def resample_forward(f, size, taps, blend, texel, out, num_threads=0) -> None:
+    """out (N, C) += blend * level `f` (C, s, s) resized to size x size and read at `texel`
+    (N,) int64, distinct flat indices; `taps` bicubic.taps(s, size) as (int32, float32)
+    arrays, None when s == size. csrc/resample.hpp."""
+    c, s, (index, weight) = _resample_args(f.shape, size, taps, texel)
+    assert f.flags.c_contiguous and out.flags.c_contiguous and out.shape == (len(texel), c)
+    library().ah_resample_forward(
+        c, s, _ptr(f), size, index, weight, blend, len(texel),
+        texel.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), _ptr(out),
+        thread_count(num_threads, None, "num_threads"),
+    )  # fmt: skip
+
+
+def resample_backward(f_shape, size, taps, blend, texel, grad, num_threads=0) -> np.ndarray:
+    """The gradient (C, s, s) of `resample_forward`'s output with respect to its level,
+    given grad (N, C)."""
+    c, s, (index, weight) = _resample_args(f_shape, size, taps, texel)
+    grad = np.ascontiguousarray(grad, np.float32)
+    grad_f = np.empty((c, s, s), np.float32)
+    library().ah_resample_backward(
+        c, s, size, index, weight, blend, len(texel),
+        texel.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), _ptr(grad), _ptr(grad_f),
+        thread_count(num_threads, None, "num_threads"),
+    )  # fmt: skip
+    return grad_f
 
 
 _STATS = ("visible", "intersections", "project_ms", "bin_ms", "composite_ms", "bwd_composite_ms",

@@ -24,6 +24,7 @@
 #include "mesh_raster.hpp"
 #include "projection.hpp"
 #include "raster.hpp"
+#include "resample.hpp"
 
 namespace {
 
@@ -542,5 +543,20 @@ void ah_image_huber(int64_t n_pixels, int32_t channels, const float* pred, const
     terms[0] = rgb / double(n);
     terms[1] = part / double(n);
 }
+
+void ah_resample_forward(int32_t c, int32_t s, const float* f, int32_t size, const int32_t* index,
+                         const float* weight, float blend, int64_t n, const int64_t* texel,
+                         float* out, int32_t num_threads) {
+    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+    ah::resample_forward({c, s, size, index, weight, blend, threads}, f, n, texel, out);
+}
+
+void ah_resample_backward(int32_t c, int32_t s, int32_t size, const int32_t* index,
+                          const float* weight, float blend, int64_t n, const int64_t* texel,
+                          const float* grad, float* grad_f, int32_t num_threads) {
+    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+    ah::resample_backward({c, s, size, index, weight, blend, threads}, n, texel, grad, grad_f);
+}
+
 
 }  // extern "C"

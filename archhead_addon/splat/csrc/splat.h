@@ -116,6 +116,18 @@ void ah_image_huber(int64_t n_pixels, int32_t channels, const float* pred, const
                     const float* parts, float delta, double* terms, float* grad_rgb,
                     float* grad_parts, int32_t num_threads);
 
+// Not a splat: one level of the avatar's feature field (c, s, s) resized bicubically to
+// size x size by its taps (index and weight (size, 4), avatar/bicubic.py; index NULL when s ==
+// size) and read at n distinct texels (flat row * size + column): out (n, c) += blend * it.
+// The backward overwrites grad_f (c, s, s) with the gradient given grad (n, c).
+// csrc/resample.hpp.
+void ah_resample_forward(int32_t c, int32_t s, const float* f, int32_t size, const int32_t* index,
+                         const float* weight, float blend, int64_t n, const int64_t* texel,
+                         float* out, int32_t num_threads);
+void ah_resample_backward(int32_t c, int32_t s, int32_t size, const int32_t* index,
+                          const float* weight, float blend, int64_t n, const int64_t* texel,
+                          const float* grad, float* grad_f, int32_t num_threads);
+
 int32_t ah_splat_abi_version(void);
 
 #ifdef __cplusplus
