@@ -98,20 +98,22 @@ def _taps(s: int, size: int):
 
 class _ResampleCPU(torch.autograd.Function):
     """The field at the texels by the splat kernel, level by level (kernel.resample_forward).
-    `steps`: (blend weight, S) per level, in the order of the level tensors."""
+    `steps`: (blend weight, S) per level, in the order of the level tensors. It runs on
+    torch's threads (`torch.set_num_threads`, which training sets from its config)."""
 
     @staticmethod
     def forward(ctx, steps, texel, *levels):
         from ..splat import kernel
 
         index = texel.detach().to(torch.int64).contiguous().numpy()
+        threads = torch.get_num_threads()
         out = np.zeros((len(index), levels[0].shape[0]), np.float32)
         for (weight, size), f in zip(steps, levels, strict=True):
             s = f.shape[1]
             level_taps = None if s == size else _taps(s, size)
             host = f.detach().contiguous().numpy()
-            kernel.resample_forward(host, size, level_taps, weight, index, out)
-        ctx.steps, ctx.index = steps, index
+            kernel.resample_forward(host, size, level_taps, weight, index, out, threads)
+        ctx.steps, ctx.index, ctx.threads = steps, index, threads
         ctx.shapes = [tuple(f.shape) for f in levels]
         return torch.from_numpy(out)
 
@@ -128,6 +130,8 @@ class _ResampleCPU(torch.autograd.Function):
                 grads.append(None)
                 continue
             level_taps = None if shape[1] == size else _taps(shape[1], size)
-            grad_f = kernel.resample_backward(shape, size, level_taps, weight, ctx.index, g)
+            grad_f = kernel.resample_backward(
+                shape, size, level_taps, weight, ctx.index, g, ctx.threads
+            )
             grads.append(torch.from_numpy(grad_f))
         return (None, None, *grads)
