@@ -127,12 +127,13 @@ def stage2_cost_ratio(s_max: int, s_min: int, n: int, perceptual: bool) -> float
     """A stage-2 step of n levels, as a multiple of a stage-1 step, until stage 2 times its
     own. Part of a CPU render's time does not grow with the Gaussians (the resample, the
     loss, ST-LPIPS when on): about half with the perceptual term (2.38 for three levels at
-    128 / 32, measured 2.06), 0.3 without; the rest scales with the count, whose mean over a
+    128 / 32, measured 2.06), 0.2 without; the rest scales with the count, whose mean over a
     random level is (1 + r + r^2) / 3 of LOD 0's, r = s_min / s_max. The `cpu` preset (one
-    level, no perceptual term): 0.61, measured 0.62 and 0.55 in two runs on the Pexels clip
-    (2026-11-29; 0.72 before the term's share was told apart)."""
+    level, no perceptual term): 0.55, measured 0.51 on the Pexels clip since the kernel took
+    over the resample and the image terms (2026-11-29; before, 0.3 for the fixed part, 0.55
+    and 0.61 measured)."""
     r = s_min / s_max
-    fixed = 0.5 if perceptual else 0.3
+    fixed = 0.5 if perceptual else 0.2
     return n * (fixed + (1 - fixed) * (1 + r + r * r) / 3)
 
 

@@ -25,9 +25,9 @@ FIT_AFTER = 20  # steps of a stage run here before the steps are fitted
 # A stage's step time is the mean of its latest steps: its first epoch costs more (each
 # frame's pose computed once: a `cpu` stage-1 step 150 ms at first, 114 ms after).
 RECENT = 200
-# A step of stage 3 / 4 against a stage-2 one: the Pexels clip's `cpu` run on the 2-core
-# machine (53.0 and 32.0 ms against 68.9: docs/quality.md); the refits correct them.
-LATER_STAGE_COST = {3: 0.77, 4: 0.46}
+# A step of stage 3 / 4 against a stage-2 one: the Pexels clip's time-limited `cpu` runs on
+# the 2-core machine (0.85-1.08 and 0.42-0.50, docs/training.md); the refits correct them.
+LATER_STAGE_COST = {3: 0.94, 4: 0.46}
 
 
 def predicted_rates(rates: dict, stage2_ratio: float) -> dict:
