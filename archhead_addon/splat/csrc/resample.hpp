@@ -1,5 +1,6 @@
 // Not a splat: the avatar's feature field at one resolution, one level at a time (the torch
-// form is avatar/resample.py: dense matrix products that spend 4 of every s taps on zeros).
+// form is avatar/resample.py: dense matrix products that spend all but 4 of every s
+// multiplications on zeros).
 // A level f (c, s, s), channel-major as the model keeps it, resized bicubically to size x
 // size by its four taps per output along each axis (bicubic.taps: index and weight, (size, 4)
 // each, the same for rows and columns), read at distinct texels (flat row * size + column)

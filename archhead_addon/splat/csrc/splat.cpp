@@ -301,9 +301,10 @@ void backward(Context& C, const float* g_rgb, const float* g_alpha, const float*
 namespace ah {
 
 // c^(5/12) for c in [0.0031308, 1], as training's sRGB encoding needs it: a first guess from
-// c's bits, then Newton's method on y^12 = c^5 (error 3 % -> 5e-3 -> 1.4e-4 -> 1e-7 -> float
-// round-off). Plain arithmetic, so that the compiler vectorizes the loop, where std::pow
-// (a call per value) took 1.7 ms for a 256^2 image.
+// c's bits (a few % off), then four steps of Newton's method on y^12 = c^5, each squaring the
+// error: within 4.9 ulp of the exact value over every float of the range (torch's pow route:
+// 7.3). Plain arithmetic, so that the compiler vectorizes the loop, where std::pow (a call
+// per value) took 1.7 ms for a 256^2 image.
 inline float srgb_root(float c) {
     constexpr int32_t kOne = 0x3f800000;  // the bits of 1.0f
     int32_t bits;
@@ -472,8 +473,8 @@ int ah_mesh_rasterize(int64_t n_vertices, int64_t n_faces, const double* xy, con
 }
 
 void ah_srgb_encode(int64_t n, const float* x, float* y, float* slope, int32_t num_threads) {
-    // torch's pow, where and their backward passes took 11 ms of a 60-110 ms training step
-    // on a 256^2 image (docs/training_profile.md); this is one pass
+    // one pass, where torch's pow, where and their backward passes took 3.2 times as long
+    // (benchmarks/kernel_ops.py)
     const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
 #pragma omp parallel for num_threads(threads) schedule(static) if (n >= 16384)
     for (int64_t i = 0; i < n; ++i) {
@@ -490,8 +491,8 @@ void ah_srgb_encode(int64_t n, const float* x, float* y, float* slope, int32_t n
 void ah_image_huber(int64_t n_pixels, int32_t channels, const float* pred, const float* target,
                     const float* parts, float delta, double* terms, float* grad_rgb,
                     float* grad_parts, int32_t num_threads) {
-    // torch's two huber_loss calls and the products before them took several ms of a
-    // training step (docs/training_profile.md). Blocks of kPixels pixels: the values and
+    // One pass where torch took two huber_loss calls, the masked copies and their backward
+    // passes (benchmarks/kernel_ops.py). Blocks of kPixels pixels: the values and
     // gradients in a loop that vectorizes (no sum in it: GCC keeps a float sum's order), then
     // each block's sums in kLanes lanes, the blocks' added in order: the same bits at any
     // thread count.
