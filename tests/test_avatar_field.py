@@ -185,3 +185,21 @@ def test_the_kernels_resample_matches_the_matrix_products(size, monkeypatch):
     out = texel_features(features, plan, texel)
     grads = torch.autograd.grad(out, [features["32"], features["64"]], upstream)
     assert all(g.abs().sum() > 0 for g in grads)
+
+
+def test_the_kernels_resample_refuses_what_it_would_read_past():
+    """It reads through raw pointers: texels or taps out of range are refused first."""
+    from archhead_addon.avatar.resample import _taps
+    from archhead_addon.splat import kernel
+
+    f = np.zeros((4, 8, 8), np.float32)
+    out = np.zeros((2, 4), np.float32)
+    with pytest.raises(ValueError, match="texels"):
+        kernel.resample_forward(f, 16, _taps(8, 16), 1.0, np.array([0, 256]), out)
+    bad = (np.full((16, 4), 8, np.int32), np.zeros((16, 4), np.float32))
+    with pytest.raises(ValueError, match="taps"):
+        kernel.resample_forward(f, 16, bad, 1.0, np.array([0, 255]), out)
+    with pytest.raises(ValueError, match="taps"):
+        kernel.resample_forward(f, 8, _taps(8, 16), 1.0, np.array([0, 63]), out)
+    with pytest.raises(ValueError, match="out"):
+        kernel.resample_forward(f, 16, _taps(8, 16), 1.0, np.array([0, 1, 2]), out)

@@ -329,27 +329,51 @@ def image_huber(
     return (float(terms[0]), float(terms[1])), g_rgb, g_parts
 
 
-def _resample_args(f_shape, size, taps, texel):
+class _Resample(NamedTuple):
+    c: int
+    s: int
+    taps: tuple  # (int32 index, float32 weight) pointers, or (None, None) at s == size
+    texel: np.ndarray
+    keep: tuple  # the arrays the pointers point into
+
+
+def _resample_args(f_shape, size: int, taps, texel) -> _Resample:
+    """Checked arguments of the resample: the kernel reads them through raw pointers."""
+    if len(f_shape) != 3 or f_shape[1] != f_shape[2]:
+        raise ValueError(f"resample: a level is (C, s, s), got {f_shape}")
     c, s = f_shape[0], f_shape[1]
-    if len(f_shape) != 3 or f_shape[2] != s or texel.ndim != 1:
-        raise ValueError(f"resample: a level (C, s, s) and texels (N,), got {f_shape}")
-    index, weight = (None, None) if taps is None else taps
-    if (index is None) != (s == size) or (index is not None and index.shape != (size, 4)):
-        raise ValueError(f"resample: taps (size, 4) for s {s} != size {size}, none at s == size")
-    i32p = ctypes.POINTER(ctypes.c_int32)
-    ptrs = (None, None) if index is None else (index.ctypes.data_as(i32p), _ptr(weight))
-    return c, s, ptrs
+    texel = np.ascontiguousarray(texel, np.int64)
+    if texel.ndim != 1 or (len(texel) and not 0 <= texel.min() <= texel.max() < size * size):
+        raise ValueError(f"resample: texels (N,) in [0, {size * size}), got {texel.shape}")
+    if (taps is None) != (s == size):
+        raise ValueError(f"resample: taps for s {s} != size {size}, none at s == size")
+    if taps is None:
+        return _Resample(c, s, (None, None), texel, ())
+    index = np.ascontiguousarray(taps[0], np.int32)
+    weight = np.ascontiguousarray(taps[1], np.float32)
+    if (
+        index.shape != (size, 4)
+        or weight.shape != (size, 4)
+        or not 0 <= index.min() <= index.max() < s
+    ):
+        raise ValueError(f"resample: taps (size, 4) into [0, {s}), got {index.shape}")
+    pointers = (index.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)), _ptr(weight))
+    return _Resample(c, s, pointers, texel, (index, weight))
 
 
 def resample_forward(f, size, taps, blend, texel, out, num_threads=0) -> None:
-    """out (N, C) += blend * level `f` (C, s, s) resized to size x size and read at `texel`
-    (N,) int64, distinct flat indices; `taps` bicubic.taps(s, size) as (int32, float32)
-    arrays, None when s == size. csrc/resample.hpp."""
-    c, s, (index, weight) = _resample_args(f.shape, size, taps, texel)
-    assert f.flags.c_contiguous and out.flags.c_contiguous and out.shape == (len(texel), c)
+    """out (N, C) float32 += blend * level `f` (C, s, s) resized to size x size and read at
+    `texel` (N,), distinct flat indices; `taps` bicubic.taps(s, size), None when s == size.
+    csrc/resample.hpp."""
+    f = np.ascontiguousarray(f, np.float32)
+    a = _resample_args(f.shape, size, taps, texel)
+    if not (
+        out.dtype == np.float32 and out.flags.c_contiguous and out.shape == (len(a.texel), a.c)
+    ):
+        raise ValueError(f"resample: out must be contiguous float32 ({len(a.texel)}, {a.c})")
     library().ah_resample_forward(
-        c, s, _ptr(f), size, index, weight, blend, len(texel),
-        texel.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), _ptr(out),
+        a.c, a.s, _ptr(f), size, *a.taps, blend, len(a.texel),
+        a.texel.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), _ptr(out),
         thread_count(num_threads, None, "num_threads"),
     )  # fmt: skip
 
@@ -357,12 +381,14 @@ def resample_forward(f, size, taps, blend, texel, out, num_threads=0) -> None:
 def resample_backward(f_shape, size, taps, blend, texel, grad, num_threads=0) -> np.ndarray:
     """The gradient (C, s, s) of `resample_forward`'s output with respect to its level,
     given grad (N, C)."""
-    c, s, (index, weight) = _resample_args(f_shape, size, taps, texel)
+    a = _resample_args(f_shape, size, taps, texel)
     grad = np.ascontiguousarray(grad, np.float32)
-    grad_f = np.empty((c, s, s), np.float32)
+    if grad.shape != (len(a.texel), a.c):
+        raise ValueError(f"resample: grad must be ({len(a.texel)}, {a.c}), got {grad.shape}")
+    grad_f = np.empty((a.c, a.s, a.s), np.float32)
     library().ah_resample_backward(
-        c, s, size, index, weight, blend, len(texel),
-        texel.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), _ptr(grad), _ptr(grad_f),
+        a.c, a.s, size, *a.taps, blend, len(a.texel),
+        a.texel.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), _ptr(grad), _ptr(grad_f),
         thread_count(num_threads, None, "num_threads"),
     )  # fmt: skip
     return grad_f
