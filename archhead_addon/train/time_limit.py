@@ -26,7 +26,8 @@ FIT_AFTER = 20  # steps of a stage run here before the steps are fitted
 # frame's pose computed once: a `cpu` stage-1 step 150 ms at first, 114 ms after).
 RECENT = 200
 # A step of stage 3 / 4 against a stage-2 one: the Pexels clip's time-limited `cpu` runs on
-# the 2-core machine (0.85-1.08 and 0.42-0.50, docs/training.md); the refits correct them.
+# the 2-core machine (stage 3 0.90-1.08 since the kernel's operations, 0.78-0.85 before;
+# stage 4 0.42-0.50: docs/training.md); the refits correct them.
 LATER_STAGE_COST = {3: 0.94, 4: 0.46}
 
 
