@@ -114,11 +114,8 @@ def main(argv=None) -> None:
         delta = self.weights.huber_delta
         return losses.huber(pred, target, delta), losses.parts_huber(pred, target, parts, delta)
 
-    def torch_srgb(c, num_threads=0):
-        return linear_to_srgb_ops(c)
-
     kernel = (loop.linear_to_srgb_torch, losses.TrainingLoss.image_terms, model.texel_features)
-    image_torch = (torch_srgb, torch_terms)
+    image_torch = (linear_to_srgb_ops, torch_terms)
 
     def patch(parts) -> None:
         loop.linear_to_srgb_torch, losses.TrainingLoss.image_terms, model.texel_features = parts

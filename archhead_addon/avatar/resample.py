@@ -27,6 +27,8 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
+from ..splat import kernel
+from ..splat.autograd import cpu_float32
 from .bicubic import resize_matrix, taps
 from .lod import blend_weights
 
@@ -49,7 +51,7 @@ def texel_features(features: Mapping[str, torch.Tensor], plan: Plan, texel) -> t
     """(N, C): the blended field at `texel` (N,), distinct flat indices row * S + col: by the
     splat kernel for float32 CPU levels, else `texel_features_torch`."""
     levels = [features[key] for key, _, _ in plan]
-    if all(f.device.type == "cpu" and f.dtype == torch.float32 for f in levels):
+    if cpu_float32(*levels):
         size = levels[0].shape[1] if plan[0][2] is None else plan[0][2].shape[0]
         steps = tuple((float(weight), size) for _, weight, _ in plan)
         return _ResampleCPU.apply(steps, texel, *levels)
@@ -100,12 +102,10 @@ def _taps(s: int, size: int):
 class _ResampleCPU(torch.autograd.Function):
     """The field at the texels by the splat kernel, level by level (kernel.resample_forward).
     `steps`: (blend weight, S) per level, in the order of the level tensors. It runs on
-    torch's threads (`torch.set_num_threads`, which training sets from its config)."""
+    torch's threads (splat.autograd.cpu_float32)."""
 
     @staticmethod
     def forward(ctx, steps, texel, *levels):
-        from ..splat import kernel
-
         index = texel.detach().to(torch.int64).contiguous().numpy()
         threads = torch.get_num_threads()
         out = np.zeros((len(index), levels[0].shape[0]), np.float32)
@@ -120,8 +120,6 @@ class _ResampleCPU(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad):
-        from ..splat import kernel
-
         g = grad.detach().contiguous().numpy()
         grads = []
         for (weight, size), shape, needed in zip(

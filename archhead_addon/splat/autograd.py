@@ -51,13 +51,21 @@ def splat_cpu(frame: SplatFrame, settings: kernel.RasterSettings):
     return SplatCPU.apply(settings, *(getattr(frame, name) for name in FIELDS))
 
 
+def cpu_float32(*tensors) -> bool:
+    """Whether the kernel's one-pass operations below (and avatar/resample.py's) take these
+    tensors: float32 on the CPU. Others go through the torch operations they replace. The
+    operations run on torch's threads (`torch.set_num_threads`, which training sets from its
+    config), as those would."""
+    return all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
+
+
 class SrgbEncodeCPU(torch.autograd.Function):
     """colour_space.linear_to_srgb of a float32 CPU tensor by the kernel, which gives the
     derivative with the values: the backward is one product."""
 
     @staticmethod
-    def forward(ctx, x, num_threads: int):
-        y, slope = kernel.srgb_encode(x.detach().numpy(), num_threads)
+    def forward(ctx, x):
+        y, slope = kernel.srgb_encode(x.detach().numpy(), torch.get_num_threads())
         ctx.save_for_backward(torch.from_numpy(slope))
         return torch.from_numpy(y)
 
@@ -65,7 +73,7 @@ class SrgbEncodeCPU(torch.autograd.Function):
     @once_differentiable
     def backward(ctx, grad):
         (slope,) = ctx.saved_tensors
-        return grad * slope, None
+        return grad * slope
 
 
 class ImageHuberCPU(torch.autograd.Function):
@@ -74,9 +82,9 @@ class ImageHuberCPU(torch.autograd.Function):
     take no gradient."""
 
     @staticmethod
-    def forward(ctx, pred, target, parts, delta: float, num_threads: int):
+    def forward(ctx, pred, target, parts, delta: float):
         host = [t.detach().numpy() for t in (pred, target, parts)]
-        terms, g_rgb, g_parts = kernel.image_huber(*host, delta, num_threads)
+        terms, g_rgb, g_parts = kernel.image_huber(*host, delta, torch.get_num_threads())
         ctx.save_for_backward(torch.from_numpy(g_rgb), torch.from_numpy(g_parts))
         return tuple(torch.tensor(t, dtype=torch.float32) for t in terms)
 
@@ -84,4 +92,4 @@ class ImageHuberCPU(torch.autograd.Function):
     @once_differentiable
     def backward(ctx, g_rgb, g_parts):
         d_rgb, d_parts = ctx.saved_tensors
-        return d_rgb * g_rgb + d_parts * g_parts, None, None, None, None
+        return d_rgb * g_rgb + d_parts * g_parts, None, None, None

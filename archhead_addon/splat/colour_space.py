@@ -26,16 +26,12 @@ def linear_to_srgb(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
 
 
-def linear_to_srgb_torch(c, num_threads: int = 0):
+def linear_to_srgb_torch(c):
     """Differentiable linear_to_srgb for torch tensors: a float32 CPU tensor by the splat
-    kernel in one pass (`num_threads` its threads; 0: the default), others in torch."""
-    import torch
+    kernel in one pass, others in torch."""
+    from .autograd import SrgbEncodeCPU, cpu_float32
 
-    if c.device.type == "cpu" and c.dtype == torch.float32:
-        from .autograd import SrgbEncodeCPU
-
-        return SrgbEncodeCPU.apply(c, num_threads)
-    return linear_to_srgb_ops(c)
+    return SrgbEncodeCPU.apply(c) if cpu_float32(c) else linear_to_srgb_ops(c)
 
 
 def linear_to_srgb_ops(c):

@@ -160,7 +160,7 @@ class Trainer:
         )
         self.image_background = torch.as_tensor(background, dtype=torch.float32, device=device)
         perceptual = ShiftTolerantLPIPS().to(device) if config.loss.lpips > 0 else None
-        self.loss = TrainingLoss(config.loss, perceptual, config.threads)
+        self.loss = TrainingLoss(config.loss, perceptual)
         groups = {
             "features": list(avatar.features.parameters()),
             "mapping": list(avatar.mapping.parameters()),
@@ -317,7 +317,7 @@ class Trainer:
             background=self.background,
             num_threads=self.config.threads,
         )
-        rgb = linear_to_srgb_torch(out.rgb, self.config.threads) if linear else out.rgb
+        rgb = linear_to_srgb_torch(out.rgb) if linear else out.rgb
         if self.config.cut == "region" and frame.region is not None:
             rgb = torch.lerp(self.image_background, rgb, frame.region)
         return rgb, g

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 
 from ..avatar.config import ROD_RATIO
 from ..avatar.gaussians import Gaussians
-from ..splat.autograd import ImageHuberCPU
+from ..splat.autograd import ImageHuberCPU, cpu_float32
 from .config import LossWeights
 
 
@@ -79,8 +79,8 @@ def scale_weight(weights: LossWeights, lod: float) -> float:
 class TrainingLoss:
     """Eq. 6 for one render; `perceptual` is an ST-LPIPS module (or None to leave it out)."""
 
-    def __init__(self, weights: LossWeights, perceptual=None, threads: int = 0):
-        self.weights, self.perceptual, self.threads = weights, perceptual, threads
+    def __init__(self, weights: LossWeights, perceptual=None):
+        self.weights, self.perceptual = weights, perceptual
 
     def __call__(self, *args, **kwargs) -> tuple[torch.Tensor, dict[str, float]]:
         """`terms`, with the terms as floats."""
@@ -133,9 +133,8 @@ class TrainingLoss:
         """(Huber(I, Î), Huber(I·B, Î·B)): float32 CPU images by the splat kernel in one
         pass (ImageHuberCPU), others by `huber` and `parts_huber`."""
         delta = self.weights.huber_delta
-        images = (pred, target, parts)
-        if all(t.device.type == "cpu" and t.dtype == torch.float32 for t in images):
-            return ImageHuberCPU.apply(*images, delta, self.threads)
+        if cpu_float32(pred, target, parts):
+            return ImageHuberCPU.apply(pred, target, parts, delta)
         return huber(pred, target, delta), parts_huber(pred, target, parts, delta)
 
     def perceptual_reference(self, target: torch.Tensor):

@@ -26,6 +26,19 @@ struct ResampleLevel {
 
 inline std::unique_ptr<float[]> floats(int64_t n) { return std::unique_ptr<float[]>(new float[n]); }
 
+// Row y of a channel-major level f (c, s, s) laid out texel-major, dst (s, c): the channels of
+// a texel side by side, as the taps' products read them
+inline void texel_major_row(const float* f, int64_t c, int64_t s, int64_t y, float* dst) {
+    for (int64_t k = 0; k < c; ++k)
+        for (int64_t x = 0; x < s; ++x) dst[x * c + k] = f[(k * s + y) * s + x];
+}
+
+// and back: src (s, c) into row y of g (c, s, s)
+inline void channel_major_row(const float* src, int64_t c, int64_t s, int64_t y, float* g) {
+    for (int64_t k = 0; k < c; ++k)
+        for (int64_t x = 0; x < s; ++x) g[(k * s + y) * s + x] = src[x * c + k];
+}
+
 // out (n, c) += blend * the level at the texels
 inline void resample_forward(const ResampleLevel& L, const float* f, int64_t n,
                              const int64_t* texel, float* out) {
@@ -33,9 +46,7 @@ inline void resample_forward(const ResampleLevel& L, const float* f, int64_t n,
     if (!L.index) {  // laid out texel-major row by row, then read a texel's row at once
         auto ft = floats(s * s * c);
 #pragma omp parallel for num_threads(L.threads) schedule(static)
-        for (int64_t y = 0; y < s; ++y)
-            for (int64_t k = 0; k < c; ++k)
-                for (int64_t x = 0; x < s; ++x) ft[(y * s + x) * c + k] = f[(k * s + y) * s + x];
+        for (int64_t y = 0; y < s; ++y) texel_major_row(f, c, s, y, &ft[y * s * c]);
 #pragma omp parallel for num_threads(L.threads) schedule(static)
         for (int64_t i = 0; i < n; ++i) {
             const float* src = &ft[texel[i] * c];
@@ -44,15 +55,14 @@ inline void resample_forward(const ResampleLevel& L, const float* f, int64_t n,
         return;
     }
     // along the columns, row by row: cols (s, size, c), each source row first laid out
-    // texel-major (a few tens of KB) so that the taps' products run along the channels
+    // texel-major (a few tens of KB)
     auto cols = floats(s * size * c);
 #pragma omp parallel num_threads(L.threads)
     {
         auto row = floats(s * c);
 #pragma omp for schedule(static)
         for (int64_t y = 0; y < s; ++y) {
-            for (int64_t k = 0; k < c; ++k)
-                for (int64_t x = 0; x < s; ++x) row[x * c + k] = f[(k * s + y) * s + x];
+            texel_major_row(f, c, s, y, row.get());
             for (int64_t x = 0; x < size; ++x) {
                 const int32_t* I = L.index + x * 4;
                 const float* W = L.weight + x * 4;
@@ -89,9 +99,7 @@ inline void resample_backward(const ResampleLevel& L, int64_t n, const int64_t* 
         for (int64_t i = 0; i < n; ++i)  // distinct texels: each row written once
             for (int64_t k = 0; k < c; ++k) gft[texel[i] * c + k] = L.blend * grad[i * c + k];
 #pragma omp parallel for num_threads(L.threads) schedule(static)
-        for (int64_t y = 0; y < s; ++y)
-            for (int64_t k = 0; k < c; ++k)
-                for (int64_t x = 0; x < s; ++x) grad_f[(k * s + y) * s + x] = gft[(y * s + x) * c + k];
+        for (int64_t y = 0; y < s; ++y) channel_major_row(&gft[y * s * c], c, s, y, grad_f);
         return;
     }
     // the rows' transpose: texels that share a source row add into it, so the threads split
@@ -128,8 +136,7 @@ inline void resample_backward(const ResampleLevel& L, int64_t n, const int64_t* 
                     for (int64_t k = 0; k < c; ++k) dst[k] += w * src[k];
                 }
             }
-            for (int64_t k = 0; k < c; ++k)
-                for (int64_t x = 0; x < s; ++x) grad_f[(k * s + y) * s + x] = row[x * c + k];
+            channel_major_row(row.get(), c, s, y, grad_f);
         }
     }
 }

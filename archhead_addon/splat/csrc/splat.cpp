@@ -77,9 +77,12 @@ bool& ellipse_steps() {
     return on;
 }
 
-int thread_count(const ah_splat_params& p) {
-    return p.num_threads > 0 ? p.num_threads : omp_get_max_threads();
+// a num_threads argument: <= 0 is the OpenMP default
+int thread_count(int32_t num_threads) {
+    return num_threads > 0 ? num_threads : omp_get_max_threads();
 }
+
+int thread_count(const ah_splat_params& p) { return thread_count(p.num_threads); }
 
 struct Context {
     ah_splat_params params;
@@ -475,7 +478,7 @@ int ah_mesh_rasterize(int64_t n_vertices, int64_t n_faces, const double* xy, con
 void ah_srgb_encode(int64_t n, const float* x, float* y, float* slope, int32_t num_threads) {
     // one pass, where torch's pow, where and their backward passes took 3.2 times as long
     // (benchmarks/kernel_ops.py)
-    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+    const int threads = thread_count(num_threads);
 #pragma omp parallel for num_threads(threads) schedule(static) if (n >= 16384)
     for (int64_t i = 0; i < n; ++i) {
         const float v = x[i];
@@ -504,7 +507,7 @@ void ah_image_huber(int64_t n_pixels, int32_t channels, const float* pred, const
     const int64_t n = n_pixels * channels, blocks = (n_pixels + kPixels - 1) / kPixels;
     std::vector<double> sums(2 * blocks, 0.0);
     const float scale = 1.0f / float(n);
-    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+    const int threads = thread_count(num_threads);
 #pragma omp parallel for num_threads(threads) schedule(static) if (blocks > 1)
     for (int64_t k = 0; k < blocks; ++k) {
         const int64_t pixels = std::min(n_pixels - k * kPixels, kPixels);
@@ -548,14 +551,14 @@ void ah_image_huber(int64_t n_pixels, int32_t channels, const float* pred, const
 void ah_resample_forward(int32_t c, int32_t s, const float* f, int32_t size, const int32_t* index,
                          const float* weight, float blend, int64_t n, const int64_t* texel,
                          float* out, int32_t num_threads) {
-    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+    const int threads = thread_count(num_threads);
     ah::resample_forward({c, s, size, index, weight, blend, threads}, f, n, texel, out);
 }
 
 void ah_resample_backward(int32_t c, int32_t s, int32_t size, const int32_t* index,
                           const float* weight, float blend, int64_t n, const int64_t* texel,
                           const float* grad, float* grad_f, int32_t num_threads) {
-    const int threads = num_threads > 0 ? num_threads : omp_get_max_threads();
+    const int threads = thread_count(num_threads);
     ah::resample_backward({c, s, size, index, weight, blend, threads}, n, texel, grad, grad_f);
 }
 
