@@ -260,7 +260,7 @@ def test_videos_without_a_usable_face_are_refused_and_leave_nothing(media, tmp_p
 def test_frames_without_a_face_are_dropped_and_reported(media, tmp_path):
     out = tmp_path / "out"
     with pytest.warns(InputWarning, match="frames dropped"):
-        report = track(media / "face_noface.mov", out, TrackOptions(size=96))
+        report = track(media / "face_noface.mov", out, TrackOptions(size=96, photometric=None))
     reasons = {d["reason"] for d in report["dropped"]}
     assert "no face found" in reasons
     assert report["frames_kept"] == len(list((out / "frames").glob("*.png"))) >= 2
@@ -285,14 +285,16 @@ def test_frames_with_a_hand_over_the_face_are_dropped_and_reported(media, tmp_pa
     """In the real clip a hand comes up over the face at frame 58."""
     out = tmp_path / "out"
     with pytest.warns(InputWarning, match="frames dropped"):
-        report = track(media / REAL_VIDEO, out, TrackOptions(size=96, max_frames=64))
+        report = track(
+            media / REAL_VIDEO, out, TrackOptions(size=96, max_frames=64, photometric=None)
+        )
     hands = [d["frame"] for d in report["dropped"] if "a hand covers" in d["reason"]]
     assert hands and min(hands) >= 55 and report["frames_with_a_hand_over_the_face"] == len(hands)
     assert not set(hands) & set(read_sequence(out / "tracking.npz").frame_ids.tolist())
     kept = track(
         media / REAL_VIDEO,
         tmp_path / "all",
-        TrackOptions(size=96, max_frames=64, max_hand_cover=1.0),
+        TrackOptions(size=96, max_frames=64, max_hand_cover=1.0, photometric=None),
     )
     assert kept["frames_kept"] == 64 and kept["frames_with_a_hand_over_the_face"] == 0
 
