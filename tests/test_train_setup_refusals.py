@@ -17,9 +17,8 @@ def test_codes_beyond_what_training_can_use_are_refused_at_set_up(tiny_subject, 
         arrays = {k: z[k] for k in z.files}
     arrays["expr"] = np.full_like(arrays["expr"], 1e30)  # read with a warning; Inf at step 1
     np.savez(subject / TRACKING_FILE, **arrays)
-    refused = pytest.raises(InputError, match="'expr': magnitude 1e\\+30 .* beyond what training")
     with (
-        refused,
+        pytest.raises(InputError, match="'expr': magnitude 1e\\+30 .* beyond what training"),
         pytest.warns(InputWarning, match="'expr': magnitude 1e\\+30 is above the plausible"),
     ):
         FrameDataset(subject, 48, load_model(), split="train")
