@@ -21,11 +21,13 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
+from .io.errors import InputError
 from .threads import choose_openmp_waiting
 from .track.cli import add_frame_flags
-from .train.config import DEFAULT_PRESET, PRESETS
+from .train.config import DEFAULT_PRESET, PRESETS, TrainConfig
 from .train.dataset import TRACKING_FILE
 from .train.run_folder import RunFolder
 
@@ -44,8 +46,8 @@ def add_avatar(commands) -> None:
     p.add_argument(
         "--preset",
         default=DEFAULT_PRESET,
-        choices=PRESETS,
-        help=f"training preset (default {DEFAULT_PRESET}; docs/training.md)",
+        help=f"training preset ({', '.join(PRESETS)}; default {DEFAULT_PRESET}) or config "
+        "file, as train's --config (docs/training.md)",
     )
     p.add_argument("--flame", help="FLAME model file (default: the built-in head)")
     add_frame_flags(p)
@@ -130,6 +132,14 @@ def run_avatar(args) -> int:
     if not (args.minutes >= 0 and math.isfinite(args.minutes)):
         print(f"avatar: --minutes: must be a number >= 0, got {args.minutes}", file=sys.stderr)
         return 2
+    if not RunFolder(args.out / RUN).state.is_file():  # (a resumed run keeps its own)
+        try:  # a bad config file is said now, not after the tracking's minutes
+            with warnings.catch_warnings():  # (training warns of what it adjusts, once)
+                warnings.simplefilter("ignore")
+                TrainConfig.load(args.preset)
+        except InputError as exc:
+            print(f"avatar: --preset: {exc}", file=sys.stderr)
+            return 2
     args.out.mkdir(parents=True, exist_ok=True)
     # One choice for both stages, made before the tracker loads the cores: training, choosing
     # when it starts, would take the tracker's load for other jobs' and let its threads sleep

@@ -33,10 +33,11 @@ variant's seconds of steps.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
+import io
 import re
 import shutil
-import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -169,14 +170,16 @@ def train(variant: str, args, folder: Path) -> float:
 
 
 def scores(avatar: Path, data: Path, out: Path, lods: str) -> dict[float, dict]:
-    """{LOD: metrics.csv row} of `evaluate` on the held-out frames."""
+    """{LOD: metrics.csv row} of `evaluate` on the held-out frames, run in this process (a
+    process of its own per variant took longer to start than to score a small subject)."""
+    from archhead_addon.evaluate.__main__ import evaluate, parse_args
+
     if not (out / "metrics.csv").is_file():
-        subprocess.run(
-            [sys.executable, "-m", "archhead_addon.evaluate", "--avatar", str(avatar),
-             "--data", str(data), "--out", str(out), "--split", "test",
-             "--lods", lods, "--precisions", "fp32"],
-            check=True, stdout=subprocess.DEVNULL,
-        )  # fmt: skip
+        with contextlib.redirect_stdout(io.StringIO()):  # its table: this one has its rows
+            evaluate(parse_args(
+                ["--avatar", str(avatar), "--data", str(data), "--out", str(out),
+                 "--split", "test", "--lods", lods, "--precisions", "fp32"]
+            ))  # fmt: skip
     with open(out / "metrics.csv") as f:
         return {float(row["lod"]): row for row in csv.DictReader(f)}
 

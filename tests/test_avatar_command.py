@@ -12,6 +12,7 @@ import time
 import pytest
 
 from archhead_addon.track.real_subject import fetch_media
+from archhead_addon.train.config import config_data
 
 
 def avatar_args(out, **changes) -> argparse.Namespace:
@@ -21,14 +22,17 @@ def avatar_args(out, **changes) -> argparse.Namespace:
     return argparse.Namespace(out=out, **{**values, **changes})
 
 
-@pytest.mark.slow
 def test_video_to_avatar_stopped_resumed_then_kept(tmp_path):
     """Ctrl-C to the command alone (as Blender's Cancel sends it) stops training at a
-    checkpoint; the same command resumes it, and a third run keeps both stages."""
+    checkpoint; the same command resumes it, and a third run keeps both stages. `--preset`
+    takes a config file too: the demo preset's, 60 steps."""
     video = fetch_media() / "single_face.mp4"
     out = tmp_path / "me"
+    preset = tmp_path / "short_demo.json"
+    steps = {"stage1_steps": 40, "stage2_steps": 20, "checkpoint_every": 10}
+    preset.write_text(json.dumps({**config_data("demo"), **steps}))
     command = [sys.executable, "-m", "archhead_addon", "avatar", str(video), "--out", str(out)]
-    command += ["--preset", "demo", "--frames", "12"]
+    command += ["--preset", str(preset), "--frames", "12"]
     manifest = out / "run" / "checkpoint.json"
     first = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     deadline = time.monotonic() + 600
@@ -38,13 +42,13 @@ def test_video_to_avatar_stopped_resumed_then_kept(tmp_path):
     stderr = first.communicate(timeout=300)[1]
     assert first.returncode == 130, stderr[-2000:]
     stopped = json.loads(manifest.read_text())["step"]
-    assert 0 < stopped < 600 and "train stopped" in stderr
+    assert 0 < stopped < 60 and "train stopped" in stderr
     assert (out / "data" / "tracking.npz").is_file() and (out / "data" / "masks_person").is_dir()
 
     second = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
     assert second.returncode == 0, second.stderr[-2000:]
     assert "track: done earlier, kept" in second.stderr and "resum" in second.stderr.lower()
-    assert json.loads(manifest.read_text())["step"] == 600
+    assert json.loads(manifest.read_text())["step"] == 60
     config = json.loads((out / "run" / "config.json").read_text())
     assert config["holdout"] == "interleaved" and config["mask"] == "head"
     assert "Load Avatar" in second.stderr and str(out / "run" / "avatar.npz") in second.stderr
@@ -72,6 +76,18 @@ def test_a_stopped_run_resumes_and_a_bad_video_names_the_stage(tmp_path):
     )
     assert done.returncode == 2 and "not_a_video.mp4" in done.stderr
     assert "track stopped" in done.stderr
+    # A bad config file is refused before the tracking's minutes, naming the file and key.
+    config = tmp_path / "mine.json"
+    config.write_text(json.dumps({"stage1_steps": -1}))
+    refused = subprocess.run(
+        [sys.executable, "-m", "archhead_addon", "avatar", str(bad), "--out", str(tmp_path / "y")]
+        + ["--preset", str(config)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert refused.returncode == 2 and "track stopped" not in refused.stderr
+    assert "mine.json: key 'stage1_steps'" in refused.stderr and not (tmp_path / "y").exists()
 
 
 def test_both_stages_wait_as_chosen_before_tracking(tmp_path, monkeypatch):
