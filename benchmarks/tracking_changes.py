@@ -1,19 +1,28 @@
-"""What the tracker's two speed-ups of 2026-11-28 are worth, each against its form before, in
-one process, on a tracked folder's own codes:
+"""What the tracker's speed-ups are worth, each against its form before, in one process, on a
+tracked folder's own codes:
 
     python benchmarks/tracking_changes.py --data out/real_hn [--frames 40] [--repeat 3]
 
-- "masks": a frame's head-and-neck region at the folder's size, the mesh rasterized by the
-  numpy z-buffer ("before", `splat/mesh_reference.py`) and by the splat kernel's
-  library ("after", `kernel.rasterize_mesh`); the regions must be identical.
+- "masks" (2026-11-28): a frame's head-and-neck region at the folder's size, the mesh
+  rasterized by the numpy z-buffer ("before", `splat/mesh_reference.py`) and by the splat
+  kernel's library ("after", `kernel.rasterize_mesh`); the regions must be identical.
 - "refine points": one pass of the photometric step's points and normals over the clip's
-  frames, forward and backward, as `FacePoints.place` placed them before (every point a
-  gather of three corners times barycentrics, (T,P,3,3)) and as it does now (the vertices
-  themselves, the triangles' centres from three gathers); the two must agree to round-off.
+  frames, forward and backward, as `FacePoints.place` placed them before 2026-11-28 (every
+  point a gather of three corners times barycentrics, (T,P,3,3)), then (the vertices
+  themselves, the triangles' centres from three gathers) and now (the centres a sparse
+  product, the normals without a gradient: they only weight the points); all must agree
+  to round-off.
+- "landmark fit step" and "refine pose" (2026-11-30): the landmark energy over the clip's
+  frames (`ClipFit.energy`), and the refinement's posing of its region vertices, forward
+  and backward, with FLAME's skinning and the landmarks' barycentric mix as they were
+  (`FlameLayer` blending each vertex's rotation and translation apart, the landmarks three
+  gathered corners each) and as they are (one (3,4) transform a vertex applied in
+  homogeneous coordinates, the landmarks a sparse product); the values must agree to
+  round-off.
 
-The refinement's third saving, its 30 colour-only steps observing the fixed fit once instead
-of posing and sampling every step, is counted, not timed: it leaves 100 of 130 steps posing.
-Prints milliseconds (the best of `--repeat`) and the ratios.
+The refinement's third saving of 2026-11-28, its 30 colour-only steps observing the fixed
+fit once instead of posing and sampling every step, is counted, not timed: it leaves 100 of
+130 steps posing. Prints milliseconds (the best of `--repeat`) and the ratios.
 """
 
 from __future__ import annotations
@@ -59,6 +68,82 @@ def place_before(points, verts):
     return mix(verts), normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
+def place_three_gathers(points, verts):
+    """`FacePoints.place` of 2026-11-28 to 2026-11-30: the centres from three gathers, the
+    normals with a gradient."""
+    import torch
+
+    a, b, c = (verts[:, points.faces[:, k]] for k in range(3))
+    face_n = torch.linalg.cross(b - a, c - a)
+    n = torch.zeros_like(verts)
+    for k in range(3):
+        n.index_add_(1, points.faces[:, k], face_n)
+    normals = torch.cat([n, sum(n[:, points.faces[:, k]] for k in range(3))], dim=1)
+    at = torch.cat([verts, (a + b + c) / 3], dim=1)
+    return at, normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def skin_apart(layer, transforms, v_posed):
+    """FLAME's skinning before 2026-11-30: each vertex's blended (3,3) rotation and its
+    translation apart."""
+    import torch
+
+    blend = torch.einsum("vj,bjrc->bvrc", layer.weights, transforms[:, :, :3, :])
+    return torch.einsum("bvrc,bvc->bvr", blend[..., :3], v_posed) + blend[..., 3]
+
+
+def landmarks_gathered(fit, corners, bary):
+    """`ClipFit.project` before 2026-11-30: each landmark three gathered corners."""
+    verts = fit.pose(fit.layer, fit.landmark_vertices)
+    pts = (verts[:, corners] * bary[None, :, :, None]).sum(2)
+    height, width = fit.size
+    return fit.project_points(pts, fit.focal(), (width / 2, height / 2))
+
+
+def skinning_rows(model, emb, points, track, repeat: int) -> list[tuple]:
+    """The landmark fit's energy and the refinement's posing over every frame, forward and
+    backward, with the skinning and landmarks before 2026-11-30 and now."""
+    import torch
+
+    from archhead_addon.flame.lbs_torch import FlameLayer
+    from archhead_addon.track.fit import ClipFit
+
+    codes = {k: track[k] for k in PER_FRAME} | {"shape": track["shape"][0]}
+    frames = len(track["expr"])
+    fit = ClipFit(model, emb, np.zeros((frames, len(emb.bary), 2)), track["frame_ids"],
+                  float(track["fps"]), tuple(int(x) for x in track["image_size"][::-1]),
+                  init=codes)  # fmt: skip
+    corners = np.unique(model.faces[emb.faces], return_inverse=True)[1].reshape(-1, 3)
+    corners, bary = torch.from_numpy(corners), torch.from_numpy(emb.bary.astype(np.float32))
+    now_skin, now_project = FlameLayer._skin, ClipFit.project
+    forms = {
+        "before": (skin_apart, lambda self: landmarks_gathered(self, corners, bary)),
+        "after": (now_skin, now_project),
+    }
+    rows, values = [], {}
+    for part in ("landmark fit step", "refine pose"):
+        for name, (skin, project) in forms.items():
+            FlameLayer._skin, ClipFit.project = skin, project
+
+            def one_pass(part=part, name=name):
+                for p in fit.p.values():
+                    p.grad = None
+                if part == "landmark fit step":
+                    out = fit.energy()[0]
+                else:
+                    out = fit.pose(points.layer, points.ids)
+                out.sum().backward()
+                values[part, name] = (out.detach(), fit.p["expr"].grad.clone())
+
+            try:
+                rows.append((part, name, best_ms(one_pass, repeat)))
+            finally:
+                FlameLayer._skin, ClipFit.project = now_skin, now_project
+        for before, after in zip(values[part, "before"], values[part, "after"], strict=True):
+            torch.testing.assert_close(before, after, rtol=1e-4, atol=1e-5)
+    return rows
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", type=Path, required=True, help="a tracked folder (tracking.npz)")
@@ -99,7 +184,8 @@ def main(argv=None) -> None:
         np.array_equal(a, b) for a, b in zip(regions["before"], regions["after"], strict=True)
     )
 
-    points = FacePoints(model, landmark_embedding(model))
+    emb = landmark_embedding(model)
+    points = FacePoints(model, emb)
     all_codes = {k: track[k] for k in PER_FRAME} | {"shape": track["shape"][0]}
     verts = torch.from_numpy(forward(model, **all_codes)[:, points.ids]).float()
     placed = {}
@@ -107,19 +193,27 @@ def main(argv=None) -> None:
     def one_pass(name, place):
         v = verts.clone().requires_grad_(True)
         at, normals = place(v)
-        (at.sum() + normals.sum()).backward()
+        at.sum().backward()  # the refinement takes no gradient through the normals
         placed[name] = (at.detach(), normals.detach())
 
-    for name, place in (("before", lambda v: place_before(points, v)), ("after", points.place)):
+    forms = (
+        ("before", lambda v: place_before(points, v)),
+        ("three gathers", lambda v: place_three_gathers(points, v)),
+        ("after", points.place),
+    )
+    for name, place in forms:
         rows.append(
             ("refine points", name, best_ms(lambda n=name, f=place: one_pass(n, f), args.repeat))
         )
-    for before, after in zip(placed["before"], placed["after"], strict=True):
-        torch.testing.assert_close(before, after, rtol=1e-4, atol=1e-5)
+    for name in ("three gathers", "after"):
+        for before, after in zip(placed["before"], placed[name], strict=True):
+            torch.testing.assert_close(before, after, rtol=1e-4, atol=1e-5)
+    rows += skinning_rows(model, emb, points, track, args.repeat)
 
     print(
         f"# Tracking changes: {args.data}, {size[1]}x{size[0]} px; masks over {n} frames, the "
-        f"refinement's points ({len(points)}) over all {len(verts)} frames; "
+        f"refinement's points ({len(points)}), the landmark fit and the refinement's posing "
+        f"over all {len(verts)} frames; "
         f"{torch.get_num_threads()} threads, best of {args.repeat}\n"
     )
     print("| part | version | ms | speed-up over before |")

@@ -24,6 +24,7 @@ from archhead_addon.sequences import read_sequence
 from archhead_addon.track.accuracy import code_errors, vertex_errors
 from archhead_addon.track.detect import hand_cover
 from archhead_addon.track.embedding import landmark_embedding
+from archhead_addon.track.fit import CAMERA_DISTANCE, ClipFit, FitOptions
 from archhead_addon.track.photometric import FacePoints
 from archhead_addon.track.pipeline import TrackOptions, track
 from archhead_addon.track.real_subject import REAL_VIDEO, fetch_media
@@ -83,6 +84,29 @@ def test_vertex_subset_poses_its_vertices_exactly(model):
     np.testing.assert_allclose(
         forward(vertex_subset(model, ids), **codes)[:, :200], full, atol=1e-12
     )
+
+
+def test_the_fit_projects_the_landmarks_where_the_embedding_puts_them(model):
+    """ClipFit's landmarks (a sparse barycentric product on its vertex subset) are the
+    embedding's points on the whole posed mesh, through the fixed camera."""
+    rng = np.random.default_rng(1)
+    emb = landmark_embedding(model)
+    frames = 3
+    codes = {
+        "shape": 0.5 * rng.normal(size=100),
+        "expr": 0.5 * rng.normal(size=(frames, 100)),
+        "jaw": 0.1 * rng.normal(size=(frames, 3)),
+        "eyes": 0.1 * rng.normal(size=(frames, 6)),
+        "rotation": 0.2 * rng.normal(size=(frames, 3)),
+        "translation": 0.01 * rng.normal(size=(frames, 3)),
+    }
+    fit = ClipFit(model, emb, np.zeros((frames, len(emb.bary), 2)), np.arange(frames), 25.0,
+                  (200, 240), FitOptions(focal=300.0), init=codes)  # fmt: skip
+    whole = {**codes, "shape": codes["shape"][None]}
+    points = emb.points(forward(model, **whole), model.faces)  # (T,478,3)
+    z = CAMERA_DISTANCE - points[..., 2]
+    want = np.stack([300 * points[..., 0] / z + 120, -300 * points[..., 1] / z + 100], -1)
+    np.testing.assert_allclose(fit.project().detach().numpy(), want, atol=2e-3)  # px
 
 
 def test_face_points_are_the_vertices_then_the_triangle_centres(model):
