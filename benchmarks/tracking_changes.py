@@ -69,18 +69,11 @@ def place_before(points, verts):
 
 
 def place_three_gathers(points, verts):
-    """`FacePoints.place` of 2026-11-28 to 2026-11-30: the centres from three gathers, the
-    normals with a gradient."""
+    """`FacePoints.place` of 2026-11-28 to 2026-11-30: the centres from three gathers."""
     import torch
 
     a, b, c = (verts[:, points.faces[:, k]] for k in range(3))
-    face_n = torch.linalg.cross(b - a, c - a)
-    n = torch.zeros_like(verts)
-    for k in range(3):
-        n.index_add_(1, points.faces[:, k], face_n)
-    normals = torch.cat([n, sum(n[:, points.faces[:, k]] for k in range(3))], dim=1)
-    at = torch.cat([verts, (a + b + c) / 3], dim=1)
-    return at, normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return torch.cat([verts, (a + b + c) / 3], dim=1), points.normals(verts)
 
 
 def skin_apart(layer, transforms, v_posed):

@@ -95,7 +95,13 @@ class FacePoints:
         n_frames, n_verts = verts.shape[:2]
         flat = verts.transpose(0, 1).reshape(n_verts, -1)  # (n, B*3)
         centres = torch.sparse.mm(self.centres, flat).view(-1, n_frames, 3).transpose(0, 1)
-        points = torch.cat([verts, centres], dim=1)
+        return torch.cat([verts, centres], dim=1), self.normals(verts)
+
+    def normals(self, verts):
+        """Unit normals (B,P,3) of the points, without a gradient: area-weighted vertex
+        normals, averaged over a triangle's corners for its centre."""
+        import torch
+
         with torch.no_grad():
             a, b, c = (verts[:, self.faces[:, k]] for k in range(3))
             face_n = torch.linalg.cross(b - a, c - a)
@@ -103,8 +109,7 @@ class FacePoints:
             for k in range(3):
                 n.index_add_(1, self.faces[:, k], face_n)
             normals = torch.cat([n, sum(n[:, self.faces[:, k]] for k in range(3))], dim=1)
-            normals /= normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        return points, normals
+            return normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def refine_photometric(
