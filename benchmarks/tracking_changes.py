@@ -7,7 +7,8 @@ tracked folder's own codes:
   rasterized by the numpy z-buffer ("before", `splat/mesh_reference.py`) and by the splat
   kernel's library ("after", `kernel.rasterize_mesh`); the regions must be identical.
 - "refine points": one pass of the photometric step's points and normals over the clip's
-  frames, forward and backward, as `FacePoints.place` placed them before 2026-11-28 (every
+  frames, forward, and backward through the points (the refinement takes no gradient
+  through the normals), as `FacePoints.place` placed them before 2026-11-28 (every
   point a gather of three corners times barycentrics, (T,P,3,3)), then (the vertices
   themselves, the triangles' centres from three gathers) and now (the centres a sparse
   product, the normals without a gradient: they only weight the points); all must agree
