@@ -144,15 +144,7 @@ class ClipFit:
         used, inverse = np.unique(model.faces[emb.faces], return_inverse=True)
         self.landmark_vertices = used
         self.layer = FlameLayer(vertex_subset(model, used))
-        # The landmarks as a sparse (478, vertices) matrix of barycentric weights: a product
-        # with it is 3x faster than gathering the corners, forward and backward.
-        n_marks = len(emb.bary)
-        self.landmark_matrix = torch.sparse_coo_tensor(
-            np.stack([np.repeat(np.arange(n_marks), 3), inverse]),
-            emb.bary.astype(np.float32).reshape(-1),
-            (n_marks, len(used)),
-            check_invariants=True,
-        ).coalesce()
+        self.landmark_matrix = corner_matrix(inverse.reshape(-1, 3), emb.bary, len(used))
         self.target = torch.from_numpy(landmarks.astype(np.float32))
         self.weight = torch.from_numpy(emb.weight.astype(np.float32))
         self.j_regressor = torch.from_numpy(model.j_regressor.astype(np.float32))
@@ -237,12 +229,8 @@ class ClipFit:
         )
 
     def project(self):
-        import torch
-
         verts = self.pose(self.layer, self.landmark_vertices)  # (T,n,3)
-        n_frames, n_verts = verts.shape[:2]
-        pts = torch.sparse.mm(self.landmark_matrix, verts.transpose(0, 1).reshape(n_verts, -1))
-        pts = pts.view(-1, n_frames, 3).transpose(0, 1)  # (T,478,3)
+        pts = corner_mix(self.landmark_matrix, verts)  # (T,478,3)
         height, width = self.size
         return self.project_points(pts, self.focal(), (width / 2, height / 2))
 
@@ -335,6 +323,31 @@ class ClipFit:
             projected.numpy().astype(np.float64),
             seconds,
         )
+
+
+def corner_matrix(corners: np.ndarray, weights, n_verts: int):
+    """Points that mix three corner vertices each ((P,3) indices, (P,3) or scalar weights)
+    as a sparse (P, n_verts) matrix: `corner_mix` with it is about 3x faster than gathering
+    the corners, forward and backward."""
+    import torch
+
+    n_points = len(corners)
+    weights = np.broadcast_to(np.asarray(weights, np.float32), corners.shape)
+    return torch.sparse_coo_tensor(
+        np.stack([np.repeat(np.arange(n_points), 3), corners.reshape(-1)]),
+        weights.reshape(-1),
+        (n_points, n_verts),
+        check_invariants=True,
+    ).coalesce()
+
+
+def corner_mix(matrix, verts):
+    """The points (B,P,3) of a `corner_matrix` on vertices (B,n,3)."""
+    import torch
+
+    n_frames, n_verts = verts.shape[:2]
+    mixed = torch.sparse.mm(matrix, verts.transpose(0, 1).reshape(n_verts, -1))
+    return mixed.view(-1, n_frames, 3).transpose(0, 1)
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:

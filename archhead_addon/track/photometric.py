@@ -32,7 +32,7 @@ from ..flame.model import FlameModel
 from ..flame.subset import vertex_subset
 from ..timing import Stopwatch
 from .embedding import LandmarkEmbedding, face_region
-from .fit import ClipFit, crop_intrinsics, fixed_camera
+from .fit import ClipFit, corner_matrix, corner_mix, crop_intrinsics, fixed_camera
 
 EYE_JOINTS = slice(3, 5)  # eye_left, eye_right in flame.model.JOINT_NAMES
 FACING = (0.2, 0.5)  # cosine to the view ray: weight 0 below the first, 1 above the second
@@ -74,15 +74,7 @@ class FacePoints:
         local = np.full(model.n_verts, -1)
         local[self.ids] = np.arange(len(self.ids))
         self.faces = torch.from_numpy(local[model.faces[region[model.faces].all(axis=1)]])
-        # the triangles' centres as a sparse (triangles, vertices) matrix of thirds: a
-        # product with it is faster than three gathers, forward and backward
-        n_faces = len(self.faces)
-        self.centres = torch.sparse_coo_tensor(
-            np.stack([np.repeat(np.arange(n_faces), 3), self.faces.numpy().reshape(-1)]),
-            np.full(3 * n_faces, 1 / 3, np.float32),
-            (n_faces, len(self.ids)),
-            check_invariants=True,
-        ).coalesce()
+        self.centres = corner_matrix(self.faces.numpy(), 1 / 3, len(self.ids))
 
     def __len__(self) -> int:
         return len(self.ids) + len(self.faces)
@@ -92,10 +84,8 @@ class FacePoints:
         on posed region vertices (B,n,3): the vertices, then the triangles' centres."""
         import torch
 
-        n_frames, n_verts = verts.shape[:2]
-        flat = verts.transpose(0, 1).reshape(n_verts, -1)  # (n, B*3)
-        centres = torch.sparse.mm(self.centres, flat).view(-1, n_frames, 3).transpose(0, 1)
-        return torch.cat([verts, centres], dim=1), self.normals(verts)
+        points = torch.cat([verts, corner_mix(self.centres, verts)], dim=1)
+        return points, self.normals(verts)
 
     def normals(self, verts):
         """Unit normals (B,P,3) of the points, without a gradient: area-weighted vertex
