@@ -13,9 +13,8 @@ optimisation is worth), whose parts this file rebuilds:
 - ST-LPIPS: channel-major, the first convolution and its blur unfolded with the input
   gradient by the library (`LibraryLPIPS`), and the target's features computed again for
   every render of a step;
-- the decoder as whole-frame torch layers under autograd (`avatar.decoder.plain_forward`,
-  its form until 2026-11-30), not the chunked forward and backward. (Before that date this
-  column's "before" was one product on the concatenated texel inputs.)
+- the decoder's first layer on the concatenated texel inputs, the heads' inputs sliced
+  (`concatenated_decoder_forward`).
 (Not rebuilt: the splat kernel, whose versions `splat_versions.py` compares, and FLAME's
 identity product per frame, which the template bakes in, 1-2 % of a render.)
 
@@ -66,6 +65,18 @@ def interpolated_texel_features(features, plan, texel):
     return out.reshape(out.shape[0], -1)[:, texel].T
 
 
+def concatenated_decoder_forward(decoder, texel, frame):
+    """`Decoder.forward` in its plain form: one product on the concatenated texel inputs (so
+    autograd computes the PE's input gradient too), the heads' inputs sliced from h."""
+    import torch
+    import torch.nn.functional as F
+
+    texel = torch.cat(texel, dim=1)
+    w, k = decoder.first.weight, texel.shape[1]
+    h = F.relu(F.linear(texel, w[:, :k], torch.addmv(decoder.first.bias, w[:, k:], frame)))
+    return {name: head(h[:, decoder.slices[name]]) for name, head in decoder.heads.items()}
+
+
 def library_lpips():
     """ST-LPIPS in its plain form: channel-major, the library's backward for every layer."""
     from archhead_addon.train import perceptual
@@ -85,14 +96,12 @@ def library_lpips():
 @contextlib.contextmanager
 def plain_step(trainer, library):
     """The trainer with the plain step's parts (the module docstring)."""
-    from archhead_addon.avatar.decoder import plain_forward
-
     module, loss, decoder = avatar_module(), trainer.loss, trainer.avatar.decoder
     saved = module.texel_features, loss.perceptual
     module.texel_features = interpolated_texel_features
     loss.perceptual = library
     loss.perceptual_reference = lambda target: None  # each render computes its own
-    decoder.forward = partial(plain_forward, decoder)
+    decoder.forward = partial(concatenated_decoder_forward, decoder)
     try:
         yield
     finally:

@@ -9,7 +9,6 @@ import pytest
 import torch
 from test_uv_sphere_head import sphere_head
 
-from archhead_addon.avatar import decoder as decoder_module
 from archhead_addon.avatar.config import ABLATIONS, AvatarConfig, ablation, parameter_shapes
 from archhead_addon.avatar.gaussians import SH_C0
 from archhead_addon.avatar.model import ArchHeadAvatar
@@ -134,48 +133,6 @@ def test_gradients_reach_every_parameter(name):
     for pname, p in avatar.named_parameters():
         assert p.grad is not None and p.grad.abs().sum() > 0, pname
     assert all(torch.isfinite(p.grad).all() for p in avatar.parameters())
-
-
-@pytest.mark.parametrize("head_layers", [1, 2, 3])
-@pytest.mark.parametrize("texel_grad", [False, True])
-@pytest.mark.parametrize("frozen", [False, True])
-def test_the_chunked_decoder_is_the_whole_frame_network(
-    monkeypatch, head_layers, texel_grad, frozen
-):
-    """Outputs and every gradient of the chunked forward and backward match the network run
-    whole under autograd, over several chunks and a short last one; a frozen decoder (stages
-    3 and 4) gets no gradients and still passes the features theirs; the PE gets one only
-    when it asks (a run that refines the codes)."""
-    monkeypatch.setattr(decoder_module, "CHUNK", 300)
-    config = AvatarConfig(n_expr=100, head_layers=head_layers, hidden=8, colour_hidden=12)
-    torch.manual_seed(head_layers)
-    decoder = decoder_module.Decoder(config)
-    for p in decoder.parameters():
-        torch.nn.init.normal_(p, 0.0, 0.3)
-    decoder.requires_grad_(not frozen)
-    n = 1000  # three chunks of 300 and one of 100
-    pe = torch.randn(n, config.pe_dim, requires_grad=texel_grad)
-    feature = torch.randn(n, config.feature_dim, requires_grad=True)
-    frame = torch.randn(config.drive_dim + 1, requires_grad=True)
-    weights = {name: torch.randn(n, w) for name, w in config.head_outputs().items()}
-
-    def run(forward):
-        inputs = [pe, feature, frame, *decoder.parameters()]
-        out = forward(decoder, [pe, feature], frame)
-        loss = sum((out[name] * weights[name]).sum() for name in weights)
-        wanted = [x for x in inputs if x.requires_grad]
-        return out, dict(zip(map(id, wanted), torch.autograd.grad(loss, wanted), strict=True))
-
-    chunked, chunked_grads = run(decoder_module.Decoder.forward)
-    whole, whole_grads = run(decoder_module.plain_forward)
-    assert list(chunked) == list(whole)
-    for name in whole:
-        torch.testing.assert_close(chunked[name], whole[name], rtol=1e-5, atol=1e-5)
-    assert chunked_grads.keys() == whole_grads.keys()
-    assert (id(pe) in whole_grads) == texel_grad
-    assert len(whole_grads) == 2 + texel_grad + (0 if frozen else len(list(decoder.parameters())))
-    for key, grad in whole_grads.items():
-        torch.testing.assert_close(chunked_grads[key], grad, rtol=1e-4, atol=1e-4)
 
 
 def test_codes_of_the_wrong_width_are_refused():

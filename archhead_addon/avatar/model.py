@@ -51,7 +51,6 @@ from ..splat.colour_space import srgb_to_linear
 from ..uv.layout import avatar_mesh
 from ..uv.raster import UVRaster, face_texel_scale, position_map
 from .config import QUAT_EPS, AvatarConfig
-from .decoder import Decoder
 from .gaussians import SH_C0, Gaussians, quat_multiply
 from .identity import bake_identity, offset_mesh
 from .level_cache import LEVEL_BYTES, LevelCache
@@ -60,6 +59,50 @@ from .resample import resample_plan, texel_features
 
 FEATURE_INIT_STD = 0.1
 OUTPUT_INIT_GAIN = 0.1
+
+
+class _Head(nn.Module):
+    def __init__(self, width: int, n_hidden: int, out: int):
+        super().__init__()
+        self.hidden = nn.ModuleList(nn.Linear(width, width) for _ in range(n_hidden))
+        self.out = nn.Linear(width, out)
+
+    def forward(self, h):
+        for layer in self.hidden:
+            h = F.relu(layer(h))
+        return self.out(h)
+
+
+class Decoder(nn.Module):
+    """Five MLP heads on the per-texel vector; their first layers fused into one."""
+
+    def __init__(self, config: AvatarConfig):
+        super().__init__()
+        self.slices = config.head_slices()
+        self.first = nn.Linear(config.in_dim, config.fused_width)
+        self.heads = nn.ModuleDict(
+            {
+                name: _Head(config.head_width(name), config.head_layers - 1, width)
+                for name, width in config.head_outputs().items()
+            }
+        )
+
+    def forward(self, texel: list[torch.Tensor], frame: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Raw head outputs from the per-texel inputs, blocks of columns (N, PE), (N, feature),
+        and the frame's, (drive | l), which every texel shares: they enter the first layer as
+        part of its bias rather than as N copies of an input (the numpy runtime's form, too).
+        Each block has its own product, so autograd skips the input gradient of a block that
+        needs none (the PE: 75 of the 139 columns)."""
+        w, k = self.first.weight, 0
+        h = torch.addmv(self.first.bias, w[:, sum(x.shape[1] for x in texel) :], frame)
+        for block in texel:
+            h = F.linear(block, w[:, k : k + block.shape[1]], h)
+            k += block.shape[1]
+        # split, not slices: its backward is one concatenation rather than a zeroed copy of
+        # h per head
+        widths = [part.stop - part.start for part in self.slices.values()]
+        h = dict(zip(self.slices, F.relu(h).split(widths, dim=1), strict=True))
+        return {name: head(h[name]) for name, head in self.heads.items()}
 
 
 class ArchHeadAvatar(nn.Module):
