@@ -20,6 +20,7 @@ from archhead_addon.sequences import write_canonical
 from archhead_addon.sequences.demo import demo_sequence
 from archhead_addon.train.config import TrainConfig
 from archhead_addon.train.dataset import FrameDataset, split_indices, split_point, target_size
+from archhead_addon.train.images import resize
 from archhead_addon.train.parts_mask import parts_mask, rasterize
 
 CODES = ("shape", "expr", "jaw", "neck", "eyes", "rotation", "translation")
@@ -370,3 +371,47 @@ def test_renumbered_frames_warn(tmp_path, model):
     (tmp_path / "frames" / "00002.png").rename(tmp_path / "frames" / "00007.png")
     with pytest.warns(InputWarning, match="matched to tracked frames by order"):
         FrameDataset(tmp_path, 32, model, split="all")
+
+
+def _axis_weights(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in) in float64, pixel i covering [i, i + 1): shrinking, the overlap of each
+    output pixel's span with each input pixel over its width; enlarging, bilinear between
+    the input centres around the output centre, clamped at the edges."""
+    if n_out <= n_in:
+        span = n_in / n_out
+        lo, hi = np.arange(n_out)[:, None] * span, (np.arange(n_out)[:, None] + 1) * span
+        k = np.arange(n_in)[None]
+        return np.clip(np.minimum(hi, k + 1) - np.maximum(lo, k), 0, None) / span
+    x = np.clip((np.arange(n_out) + 0.5) * n_in / n_out - 0.5, 0, n_in - 1)
+    weights = np.zeros((n_out, n_in))
+    for j, xj in enumerate(x):
+        k0 = min(int(np.floor(xj)), max(n_in - 2, 0))
+        weights[j, k0] += 1 - (xj - k0)
+        if n_in > 1:
+            weights[j, k0 + 1] += xj - k0
+    return weights
+
+
+@pytest.mark.parametrize(
+    "shape, size",
+    [
+        ((1080, 1080, 3), (512, 512)),  # a full-HD crop to the tracker's frames: area
+        ((340, 340, 3), (512, 512)),  # a small crop enlarged: bilinear
+        ((512, 512), (256, 256)),  # a mask to the training size
+        ((360, 640, 3), (100, 713)),  # one axis shrinks, the other grows, factors not whole
+        ((7, 1, 3), (3, 5)),  # a one-pixel axis enlarged holds its value
+        ((9, 9), (9, 4)),  # one axis kept
+    ],
+)
+def test_resize_is_the_area_mean_shrinking_and_bilinear_enlarging(shape, size):
+    rng = np.random.default_rng(sum(shape))
+    pixels = rng.integers(0, 256, shape).astype(np.uint8)
+    out = resize(pixels, size)
+    rows, cols = _axis_weights(shape[0], size[0]), _axis_weights(shape[1], size[1])
+    planes = pixels.reshape(*shape[:2], -1).astype(np.float64)
+    wanted = np.einsum("ih,hwc,jw->ijc", rows, planes, cols, optimize=True)
+    wanted = wanted.reshape(*size, *shape[2:])
+    assert out.dtype == np.float32 and out.shape == wanted.shape
+    np.testing.assert_allclose(out, wanted, rtol=0, atol=2e-4)
+    # a view, not contiguous (as the tracker's crops are): the flip of the flipped pixels
+    np.testing.assert_allclose(resize(pixels[::-1], size), wanted[::-1], rtol=0, atol=2e-4)
