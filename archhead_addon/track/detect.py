@@ -9,8 +9,12 @@ which fails offline). The check below refuses to start rather than let a downloa
 from __future__ import annotations
 
 import importlib.util
+from collections import deque
+from collections.abc import Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -75,7 +79,14 @@ def hand_cover(face: np.ndarray, hands: list[np.ndarray]) -> float:
 
 
 class FaceDetector:
-    """Landmarks of the largest face per frame; `video=True` tracks between frames."""
+    """Landmarks of the largest face per frame; `video=True` tracks between frames.
+
+    The models (Face Mesh, the segmentation, the hands) each run on a thread of their own,
+    frames in order, a few frames ahead of the caller (`stream`): MediaPipe releases the GIL
+    while a model runs, so the three share the cores where one after the other they took
+    one (docs/tracking.md, "Time")."""
+
+    AHEAD = 4  # frames in flight: each holds its RGB frame and its models' outputs
 
     def __init__(
         self, video: bool = True, max_faces: int = 4, masks: bool = True, hands: bool = True
@@ -84,55 +95,92 @@ class FaceDetector:
         from mediapipe.python.solutions import face_mesh, selfie_segmentation
         from mediapipe.python.solutions import hands as hand_landmarks
 
-        self._mesh = face_mesh.FaceMesh(
-            static_image_mode=not video,
-            max_num_faces=max_faces,
-            refine_landmarks=True,
-            min_detection_confidence=0.5,
-            min_tracking_confidence=0.5,
-        )
-        self._segment = selfie_segmentation.SelfieSegmentation(model_selection=0) if masks else None
-        self._hands = (
-            hand_landmarks.Hands(
+        self._models = {
+            "mesh": face_mesh.FaceMesh(
+                static_image_mode=not video,
+                max_num_faces=max_faces,
+                refine_landmarks=True,
+                min_detection_confidence=0.5,
+                min_tracking_confidence=0.5,
+            )
+        }
+        if masks:
+            self._models["mask"] = selfie_segmentation.SelfieSegmentation(model_selection=0)
+        if hands:
+            self._models["hands"] = hand_landmarks.Hands(
                 static_image_mode=not video,
                 max_num_hands=2,
                 model_complexity=1,
                 min_detection_confidence=0.5,
                 min_tracking_confidence=0.5,
             )
-            if hands
-            else None
-        )
+        # one thread per model: a model's frames go through it in order, as video mode needs
+        self._threads = {
+            name: ThreadPoolExecutor(1, thread_name_prefix=f"archhead-{name}")
+            for name in self._models
+        }
 
     def __call__(self, rgb: np.ndarray) -> Detection:
-        rgb = np.ascontiguousarray(rgb)
-        height, width = rgb.shape[:2]
-        result = self._mesh.process(rgb)
-        faces = result.multi_face_landmarks or []
-        landmarks = None
-        if faces:
-            # MediaPipe's normalised coordinates put pixel centres at +0.5 (x * width).
-            all_faces = [
-                np.array([(p.x * width, p.y * height) for p in face.landmark]) for face in faces
-            ]
-            landmarks = max(all_faces, key=lambda lm: np.ptp(lm[:, 0]) * np.ptp(lm[:, 1]))
-        mask = None
-        if self._segment is not None:
-            mask = self._segment.process(rgb).segmentation_mask.astype(np.float32)
-        cover = 0.0
-        if self._hands is not None and landmarks is not None:
-            found = self._hands.process(rgb).multi_hand_landmarks or []
-            hands = [np.array([(p.x * width, p.y * height) for p in h.landmark]) for h in found]
-            cover = hand_cover(landmarks, hands)
-        return Detection(landmarks, len(faces), mask, cover)
+        return next(self.stream([(None, rgb)]))[1]
+
+    def stream(self, frames: Iterable[tuple[Any, np.ndarray]]) -> Iterator[tuple[Any, Detection]]:
+        """(key, detection) for each (key, RGB uint8 frame) of `frames`, in order."""
+        pending = deque()
+        for key, rgb in frames:
+            rgb = np.ascontiguousarray(rgb)
+            outputs = {
+                name: self._threads[name].submit(_OUTPUTS[name], model, rgb)
+                for name, model in self._models.items()
+            }
+            pending.append((key, outputs))
+            if len(pending) > self.AHEAD:
+                key, outputs = pending.popleft()
+                yield key, _detection(outputs)
+        while pending:
+            key, outputs = pending.popleft()
+            yield key, _detection(outputs)
 
     def close(self) -> None:
-        for solution in (self._mesh, self._segment, self._hands):
-            if solution is not None:
-                solution.close()
+        for thread in self._threads.values():  # a model's last frame ends before it closes
+            thread.shutdown(wait=True, cancel_futures=True)
+        for model in self._models.values():
+            model.close()
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _faces(model, rgb: np.ndarray) -> list[np.ndarray]:
+    """Every face's landmarks (478,2) in pixels. MediaPipe's normalised coordinates put pixel
+    centres at +0.5 (x * width)."""
+    height, width = rgb.shape[:2]
+    faces = model.process(rgb).multi_face_landmarks or []
+    return [np.array([(p.x * width, p.y * height) for p in face.landmark]) for face in faces]
+
+
+def _mask(model, rgb: np.ndarray) -> np.ndarray:
+    return model.process(rgb).segmentation_mask.astype(np.float32)  # a copy of its buffer
+
+
+def _hands(model, rgb: np.ndarray) -> list[np.ndarray]:
+    height, width = rgb.shape[:2]
+    found = model.process(rgb).multi_hand_landmarks or []
+    return [np.array([(p.x * width, p.y * height) for p in h.landmark]) for h in found]
+
+
+_OUTPUTS = {"mesh": _faces, "mask": _mask, "hands": _hands}
+
+
+def _detection(futures: dict) -> Detection:
+    """A frame's Detection from its models' outputs (raises what a model raised)."""
+    faces = futures["mesh"].result()
+    landmarks = max(faces, key=lambda lm: np.ptp(lm[:, 0]) * np.ptp(lm[:, 1])) if faces else None
+    mask = futures["mask"].result() if "mask" in futures else None
+    cover = 0.0
+    if "hands" in futures:
+        hands = futures["hands"].result()
+        cover = 0.0 if landmarks is None else hand_cover(landmarks, hands)
+    return Detection(landmarks, len(faces), mask, cover)

@@ -103,7 +103,9 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
     total = source.count if opt.max_frames is None else min(opt.max_frames, source.count)
     stride = frame_stride(total, opt.frame_budget)
     chosen = math.ceil(total / stride)
-    with FaceDetector(video=source.kind == "video", hands=opt.max_hand_cover < 1) as detect:
+
+    def frames():  # every frame the size of the first
+        nonlocal size
         for number, rgb in source.frames(total, stride):
             if size is None:
                 size = rgb.shape[:2]
@@ -114,7 +116,10 @@ def track(source_path, out, options: TrackOptions | None = None, progress=None) 
                     f"frame {number} is {rgb.shape[1]}x"
                     f"{rgb.shape[0]}, the first was {size[1]}x{size[0]}",
                 )
-            found = detect(rgb)
+            yield number, rgb
+
+    with FaceDetector(video=source.kind == "video", hands=opt.max_hand_cover < 1) as detect:
+        for number, found in detect.stream(frames()):
             multi += found.n_faces > 1
             if found.landmarks is None:
                 dropped.append({"frame": number, "reason": "no face found"})
