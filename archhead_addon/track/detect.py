@@ -84,7 +84,7 @@ class FaceDetector:
     The models (Face Mesh, the segmentation, the hands) each run on a thread of their own,
     frames in order, a few frames ahead of the caller (`stream`): MediaPipe releases the GIL
     while a model runs, so the three share the cores where one after the other they took
-    one (docs/tracking.md, "Time")."""
+    one (docs/tracking.md, "the detectors side by side")."""
 
     AHEAD = 4  # frames in flight: each holds its RGB frame and its models' outputs
 
@@ -154,11 +154,8 @@ class FaceDetector:
 
 
 def _faces(model, rgb: np.ndarray) -> list[np.ndarray]:
-    """Every face's landmarks (478,2) in pixels. MediaPipe's normalised coordinates put pixel
-    centres at +0.5 (x * width)."""
-    height, width = rgb.shape[:2]
-    faces = model.process(rgb).multi_face_landmarks or []
-    return [np.array([(p.x * width, p.y * height) for p in face.landmark]) for face in faces]
+    """Every face's landmarks (478,2) in pixels."""
+    return [_pixels(face, rgb) for face in model.process(rgb).multi_face_landmarks or []]
 
 
 def _mask(model, rgb: np.ndarray) -> np.ndarray:
@@ -166,9 +163,15 @@ def _mask(model, rgb: np.ndarray) -> np.ndarray:
 
 
 def _hands(model, rgb: np.ndarray) -> list[np.ndarray]:
+    """Every hand's joints (21,2) in pixels."""
+    return [_pixels(hand, rgb) for hand in model.process(rgb).multi_hand_landmarks or []]
+
+
+def _pixels(points, rgb: np.ndarray) -> np.ndarray:
+    """MediaPipe's normalised landmarks in pixels: its coordinates put pixel centres at +0.5
+    (x * width)."""
     height, width = rgb.shape[:2]
-    found = model.process(rgb).multi_hand_landmarks or []
-    return [np.array([(p.x * width, p.y * height) for p in h.landmark]) for h in found]
+    return np.array([(p.x * width, p.y * height) for p in points.landmark])
 
 
 _OUTPUTS = {"mesh": _faces, "mask": _mask, "hands": _hands}

@@ -142,7 +142,7 @@ def resize(pixels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     enlarging, bilinear between the two input centres around the output centre, the edges
     held. OpenCV's area and bilinear resampling are exactly these, in float32: 4-20x the
     speed of the same weights as dense matrix products, which a full-HD frame made the
-    tracker's slowest part after the fits (docs/tracking.md, "Time")."""
+    tracker's slowest part after the fits (docs/tracking.md, "resampling the frames")."""
     import cv2
 
     h, w = size
