@@ -106,7 +106,7 @@ def derive_embedding(model: FlameModel) -> LandmarkEmbedding:
     found = np.zeros((len(VIEW_YAWS), N_LANDMARKS), bool)
     tri = np.zeros((len(VIEW_YAWS), N_LANDMARKS), np.int64)
     bary = np.zeros((len(VIEW_YAWS), N_LANDMARKS, 3))
-    with FaceDetector(video=False, max_faces=1, masks=False) as detect:
+    with FaceDetector(video=False, max_faces=1, masks=False, hands=False) as detect:
         for v, yaw in enumerate(VIEW_YAWS):
             K, w2c = view_camera(yaw)
             rgb, _, face_at, _ = render_mesh(model, verts, K, w2c, (RENDER_SIZE,) * 2)
