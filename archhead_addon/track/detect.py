@@ -182,8 +182,6 @@ def _detection(futures: dict) -> Detection:
     faces = futures["mesh"].result()
     landmarks = max(faces, key=lambda lm: np.ptp(lm[:, 0]) * np.ptp(lm[:, 1])) if faces else None
     mask = futures["mask"].result() if "mask" in futures else None
-    cover = 0.0
-    if "hands" in futures:
-        hands = futures["hands"].result()
-        cover = 0.0 if landmarks is None else hand_cover(landmarks, hands)
+    hands = futures["hands"].result() if "hands" in futures else []
+    cover = 0.0 if landmarks is None else hand_cover(landmarks, hands)
     return Detection(landmarks, len(faces), mask, cover)
