@@ -23,7 +23,6 @@ import statistics
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 POINT_COUNTS = (10, 4_000, 16_000, 60_000)
 
@@ -127,7 +126,6 @@ def main(argv=None) -> None:
     from archhead_addon.timing import restart_with_threads
 
     restart_with_threads(2)  # before bpy and numpy load their thread pools
-    sys.path.insert(0, str(Path(__file__).parent))
     from archhead_blender import api
 
     api.enable_addon()
