@@ -131,6 +131,18 @@ def _build(n: int, checkpoint: Path, folder: Path, size: tuple[int, int], pictur
     return scene, avatars, (first, per_head, (settled_rss() - rss["one avatar"]) / extra)
 
 
+def untrained_checkpoint(folder: Path, kind: str) -> Path:
+    """An untrained avatar of the "demo" preset's size or of full size, written in `folder`
+    by the backend (Blender's own Python has no torch)."""
+    from archhead_blender import api
+
+    checkpoint = folder / f"avatar_{kind}.npz"
+    python = api.python_with_torch() or sys.executable
+    command = [python, "-m", "archhead_addon.avatar.untrained", str(checkpoint)]
+    subprocess.run(command + (["--preset", "demo"] if kind == "demo" else []), check=True)
+    return checkpoint
+
+
 def _load(heads, checkpoint: Path) -> None:
     import bpy
 
@@ -159,10 +171,7 @@ def measure(
         get_preferences(bpy.context).memory_total_mb = memory_total
     folder = api.scratch_folder("archhead_crowd_")
     if kind in ("demo", "full"):
-        checkpoint = folder / f"avatar_{kind}.npz"
-        python = api.python_with_torch() or sys.executable
-        command = [python, "-m", "archhead_addon.avatar.untrained", str(checkpoint)]
-        subprocess.run(command + (["--preset", "demo"] if kind == "demo" else []), check=True)
+        checkpoint = untrained_checkpoint(folder, kind)
     else:  # a trained checkpoint's path
         checkpoint = Path(kind).resolve()
     watch = api.Stopwatch()

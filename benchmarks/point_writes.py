@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
-import sys
 import time
 
 POINT_COUNTS = (10, 4_000, 16_000, 60_000)
@@ -69,10 +67,7 @@ def crowd_ways(heads: int, rounds: int) -> dict[str, dict[str, float]]:
     from archhead_blender.handlers import refresh_scene, resume, suspend
 
     folder = api.scratch_folder("archhead_point_writes_")
-    checkpoint = folder / "avatar_full.npz"
-    python = api.python_with_torch() or sys.executable
-    command = [python, "-m", "archhead_addon.avatar.untrained", str(checkpoint)]
-    subprocess.run(command, check=True)
+    checkpoint = crowd.untrained_checkpoint(folder, "full")
     scene, avatars, _ = crowd._build(heads, checkpoint, folder, (1280, 720))
     context = bpy.context
     frames = list(range(2, 8))
