@@ -213,21 +213,26 @@ class SharedDecoder:
                 return key, cull_frame(whole, view)
         return key, splat
 
-    def decode(self, request: FrameRequest) -> CachedFrame:
+    def decode(self, request: FrameRequest, posed=None) -> CachedFrame:
         """A fresh decode of a request, as its cache entry: numpy alone, so that
         `resolve_frames` runs several on threads of their own (nothing here touches bpy or
-        the caches)."""
-        kwargs = request.codes.as_kwargs()
-        kwargs["expr"] = kwargs["expr"][: self.n_expr]
+        the caches). `posed`: its head from `runtime.pose`, posed with others'."""
         gaussians = self.runtime.decode(
             resolution_for_lod(request.lod)[0],
             precision=PRECISION,
             sh_degree=self.sh_degree if request.sh_degree is None else request.sh_degree,
             view=request.view,
-            **kwargs,
+            posed=posed,
+            **self.codes(request),
         )
         splat = SplatFrame.from_gaussians(gaussians)
         return CachedFrame(splat, point_attributes(splat, None, self.colour_space))
+
+    def codes(self, request: FrameRequest) -> dict:
+        """The request's codes as `runtime.decode` and `runtime.pose` take them."""
+        kwargs = request.codes.as_kwargs()
+        kwargs["expr"] = kwargs["expr"][: self.n_expr]
+        return kwargs
 
     def store(self, key: str, entry: CachedFrame) -> SplatFrame:
         """Keep a decoded frame in the memory cache (and the disk cache)."""
@@ -262,10 +267,9 @@ def resolve_frame(request: FrameRequest) -> tuple[str, SplatFrame]:
 
 
 def resolve_frames(requests: list[FrameRequest]) -> list:
-    """Each request's (key, Gaussians): from the caches, else decoded. The decodes run
-    together (`decode_batch`: a crowd's heads on every core at once, benchmarks/crowd.py),
-    each frame once however many requests ask for it. A decode that fails leaves its
-    exception in its requests' places."""
+    """Each request's (key, Gaussians): from the caches, else decoded, together
+    (`decode_requests`), each frame once however many requests ask for it. A decode that
+    fails leaves its exception in its requests' places."""
     results: list = [None] * len(requests)
     wanted: dict[tuple, tuple[str, FrameRequest, list[int]]] = {}
     for i, request in enumerate(requests):
@@ -277,15 +281,47 @@ def resolve_frames(requests: list[FrameRequest]) -> list:
     if not wanted:
         return results
     jobs = list(wanted.values())
-    entries = decode_batch(
-        [functools.partial(request.decoder.decode, request) for _, request, _ in jobs],
-        [request.texels() for _, request, _ in jobs],
-    )
+    entries = decode_requests([request for _, request, _ in jobs])
     for (key, request, places), entry in zip(jobs, entries, strict=True):
         found = entry if isinstance(entry, Exception) else (key, request.decoder.store(key, entry))
         for i in places:
             results[i] = found
     return results
+
+
+def decode_requests(requests: list[FrameRequest]) -> list:
+    """Fresh decodes of `requests` (cache entries, or the exception a decode raised), run
+    together: the heads of one decoder posed in one pass (`_posed`), then their decodes on
+    every core at once (`decode_batch`: a crowd's heads, benchmarks/crowd.py)."""
+    posed = _posed(requests)
+    return decode_batch(
+        [
+            functools.partial(request.decoder.decode, request, head)
+            for request, head in zip(requests, posed, strict=True)
+        ],
+        [request.texels() for request in requests],
+    )
+
+
+def _posed(requests: list[FrameRequest]) -> list:
+    """Each request's posed head, the heads of one decoder posed in one batched pass
+    (`AvatarRuntime.pose`); None where a decoder has one request or posing failed (its
+    decode poses it and says what was wrong)."""
+    groups: dict[int, list[int]] = {}
+    for i, request in enumerate(requests):
+        groups.setdefault(id(request.decoder), []).append(i)
+    posed: list = [None] * len(requests)
+    for places in groups.values():
+        if len(places) < 2:
+            continue
+        decoder = requests[places[0]].decoder
+        try:
+            heads = decoder.runtime.pose([decoder.codes(requests[i]) for i in places])
+        except ValueError:
+            continue
+        for i, head in zip(places, heads, strict=True):
+            posed[i] = head
+    return posed
 
 
 class AvatarSession:

@@ -20,6 +20,9 @@ costs equal trained ones'). Then it measures, each over --frames frames not seen
   their ratio; and with the add-on paused (Blender evaluating the rigs alone: the part no
   level of detail changes), and paused with each head's shape evaluated from its keys
   (what Load Avatar's pinning of the Basis saves);
+- the heads' decodes alone at one frame, as a frame change runs them: every head at LOD 1,
+  0.5 and 0, fitted as a fixed part and a cost per texel, and at the driven levels (a second
+  table: what the fixed part costs the driven/LOD-0 ratio);
 - Decode Frames over the whole crowd (one pass), per head and frame;
 - the add-on's handler on frames already decoded, per head: showing a cached frame (its
   codes read from the rig, the frame found, its points written), and with nothing to change;
@@ -222,6 +225,7 @@ def measure(
             head.show_only_shape_key = True
     finally:
         resume()
+    model = decode_model(context, avatars)
     decode_frames = [next(frame) for _ in range(frames)]
     start = time.perf_counter()
     api.decode_frames(context, avatars, decode_frames)
@@ -279,12 +283,71 @@ def measure(
         "decode_ms_per_head_frame": round(decode_ms, 1),
         "handler_ms_per_head_cached": round(cached_ms, 2),
         "handler_ms_per_head_idle": round(idle, 3),
+        **model,
         "render_s_driven": round(renders["driven"], 2),
         "render_s_lod0": round(renders["lod0"], 2),
         "frames_played_lod0": played,
         "cached_mb_after_play": round(cached_mb),
         "rss_end_mb": round(resident_mb()),
         "rss_peak_mb": round(resident_mb("VmHWM")),
+    }
+
+
+def decode_model(context, avatars, repeats: int = 3) -> dict:
+    """The heads' decodes alone, as a frame change runs them (`decode_requests`), at the
+    scene's current frame: every head at LOD 1, 0.5 and 0, fitted as wall time = fixed + per
+    texel x texels; then the heads at their driven levels and all at LOD 0, measured and as
+    the fit gives them. What the fixed part (a head's FLAME pass, the Python between its
+    products) costs the driven/LOD-0 ratio: with none the ratio would be the share of
+    texels. And the driven levels with each head posed on its own decode thread, as before
+    a decoder's heads were posed together (each measurement takes turns with it)."""
+    import numpy as np
+
+    from archhead_addon.avatar.runtime import decode_batch
+    from archhead_blender import api
+    from archhead_blender.avatar_session import FrameRequest, decode_requests
+
+    depsgraph = context.evaluated_depsgraph_get()
+    sessions = [api.session(obj) for obj in avatars]
+    codes = [
+        api.frame_codes(obj.archhead_avatar.head, depsgraph, s.joint_dirs)
+        for obj, s in zip(avatars, sessions, strict=True)
+    ]
+    driven = [api.avatar_lod(obj, depsgraph) for obj in avatars]
+
+    alone_ms = []
+
+    def wall(lods) -> tuple[float, int]:
+        triples = zip(sessions, codes, lods, strict=True)
+        requests = [FrameRequest(s.shared, c, lod) for s, c, lod in triples]
+        weights = [r.texels() for r in requests]
+        alone = [lambda r=r: r.decoder.decode(r) for r in requests]  # each posing its head
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            decode_requests(requests)
+            times.append(1e3 * (time.perf_counter() - start))
+            if lods is driven:
+                start = time.perf_counter()
+                decode_batch(alone, weights)
+                alone_ms.append(1e3 * (time.perf_counter() - start))
+        return statistics.median(times), sum(weights)
+
+    uniform = [wall([lod] * len(avatars)) for lod in (1.0, 0.5, 0.0)]
+    per_texel, fixed = np.polyfit([t for _, t in uniform], [ms for ms, _ in uniform], 1)
+    driven_ms, driven_texels = wall(driven)
+    lod0_ms, lod0_texels = uniform[-1]
+    return {
+        "decode_ms_driven_posed_alone": round(statistics.median(alone_ms), 1),
+        "decode_fixed_ms": round(float(fixed), 1),
+        "decode_us_per_texel": round(1e3 * float(per_texel), 3),
+        "decode_texels_driven": driven_texels,
+        "decode_texels_lod0": lod0_texels,
+        "decode_ms_driven": round(driven_ms, 1),
+        "decode_ms_lod0": round(lod0_ms, 1),
+        "decode_ratio_fit": round(
+            float((fixed + per_texel * driven_texels) / (fixed + per_texel * lod0_texels)), 3
+        ),
     }
 
 
@@ -330,6 +393,25 @@ def table(rows: list[dict]) -> str:
             f"{r['rss_all_mb']:,} MB | {r['mb_per_extra_head']} = {r['mb_per_extra_rig']} + "
             f"{r['mb_per_extra_avatar']} | {r['cached_mb_after_play']:,} / "
             f"{r['rss_end_mb']:,} / {r['rss_peak_mb']:,} |"
+        )
+    return "\n".join(lines)
+
+
+def decode_table(rows: list[dict]) -> str:
+    """The heads' decodes alone (`decode_model`): the driven/LOD-0 ratio measured, as the
+    fit gives it, and as the share of texels (no fixed part at all)."""
+    lines = [
+        "| N | avatar | decodes alone, ms driven / LOD 0 (ratio) | fit: fixed ms + µs a texel "
+        "(ratio) | texels driven / LOD 0 (share) | driven, each head posed alone, ms |",
+        "|---:|---|---|---|---|---:|",
+    ]
+    for r in rows:
+        driven, lod0 = r["decode_texels_driven"], r["decode_texels_lod0"]
+        lines.append(
+            f"| {r['heads']} | {r['avatar']} | {r['decode_ms_driven']} / {r['decode_ms_lod0']} "
+            f"({r['decode_ms_driven'] / r['decode_ms_lod0']:.2f}x) | {r['decode_fixed_ms']} + "
+            f"{r['decode_us_per_texel']} ({r['decode_ratio_fit']:.2f}x) | {driven:,} / "
+            f"{lod0:,} ({driven / lod0:.2f}x) | {r['decode_ms_driven_posed_alone']} |"
         )
     return "\n".join(lines)
 
@@ -382,6 +464,7 @@ def main(argv=None) -> None:
             rows.append(child(n, kind))
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     print(table(rows))
+    print(decode_table(rows))
     if args.picture:
         child(args.picture_heads, str(args.checkpoint.resolve()), args.picture)
         print(f"crowd picture: {args.picture}")

@@ -117,6 +117,28 @@ def test_a_batch_of_decodes_on_threads_gives_each_decode_alone(saved):
     assert (shared.level.misses, shared.level.hits) == (4, len(jobs) - 4)
 
 
+def test_heads_posed_together_decode_as_each_alone(saved):
+    """`pose`: several frames' FLAME in one batched pass (a crowd's heads) gives each
+    decode what posing it alone gives, up to float32 round-off, whatever codes each has:
+    expressions of other widths or none; a code with NaN fails the pass, naming it."""
+    _, path, head = saved
+    runtime = AvatarRuntime.load(path, flame=head, threads=1)
+    codes = [frame_codes(seed=s) for s in range(3)]
+    codes[1]["expr"] = codes[1]["expr"][:7]
+    codes.append({})  # the neutral face
+    posing = ("expr", "jaw", "neck", "eyes")
+    posed = runtime.pose([{k: c[k] for k in posing if k in c} for c in codes])
+    assert len(posed) == len(codes)
+    for c, p in zip(codes, posed, strict=True):
+        want, got = runtime.decode(0.4, **c), runtime.decode(0.4, posed=p, **c)
+        for name in ATTRS:  # as against torch: the PE's top octave scales a position's
+            # float32 round-off by 2^11
+            assert np.abs(getattr(got, name) - getattr(want, name)).max() <= 1e-4, name
+    with pytest.raises(ValueError, match="jaw"):
+        runtime.pose([codes[0], {"jaw": [np.nan, 0, 0]}])
+    assert runtime.pose([]) == []
+
+
 def test_runtime_never_imports_torch(saved):
     _, path, head = saved
     script = textwrap.dedent(f"""

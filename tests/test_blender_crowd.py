@@ -167,8 +167,8 @@ def test_a_scene_refresh_decodes_each_frame_once_and_a_failing_avatar_spares_the
     shared, failing = session(original[2]).shared, session(other[2]).shared
     assert session(copy[2]).shared is shared and failing is not shared
     decode, calls = shared.decode, []
-    shared.decode = lambda request: calls.append(request) or decode(request)
-    failing.decode = lambda request: (_ for _ in ()).throw(ValueError("a broken frame"))
+    shared.decode = lambda request, *posed: calls.append(request) or decode(request, *posed)
+    failing.decode = lambda *_: (_ for _ in ()).throw(ValueError("a broken frame"))
     before = _points(other[2])
     try:
         scene.frame_set(3)
