@@ -299,8 +299,8 @@ def decode_model(context, avatars, repeats: int = 3) -> dict:
     texel x texels; then the heads at their driven levels and all at LOD 0, measured and as
     the fit gives them. What the fixed part (a head's FLAME pass, the Python between its
     products) costs the driven/LOD-0 ratio: with none the ratio would be the share of
-    texels. And the driven levels with each head posed on its own decode thread, as before
-    a decoder's heads were posed together (each measurement takes turns with it)."""
+    texels. After each driven measurement, the same levels with each head posed on its own
+    decode thread (the path before a checkpoint's heads were posed together)."""
     import numpy as np
 
     from archhead_addon.avatar.runtime import decode_batch
