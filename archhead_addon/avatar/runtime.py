@@ -517,7 +517,7 @@ def _code(value, width: int, name: str, pad: bool = False) -> np.ndarray:
         )
     if not np.isfinite(v).all():
         raise ValueError(f"code '{name}' contains NaN or Inf")
-    if len(v) == width:  # (np.pad costs 40 us, a far head's decode 2 ms)
+    if len(v) == width:  # (np.pad costs 25 us: nine of them were a tenth of a far head's decode)
         return v
     out = np.zeros(width)
     out[: len(v)] = v
