@@ -317,7 +317,7 @@ def decode_model(context, avatars, repeats: int = 3) -> dict:
 
     alone_ms = []
 
-    def wall(lods) -> tuple[float, int]:
+    def wall(lods, also_alone: bool = False) -> tuple[float, int]:
         triples = zip(sessions, codes, lods, strict=True)
         requests = [FrameRequest(s.shared, c, lod) for s, c, lod in triples]
         weights = [r.texels() for r in requests]
@@ -327,7 +327,7 @@ def decode_model(context, avatars, repeats: int = 3) -> dict:
             start = time.perf_counter()
             decode_requests(requests)
             times.append(1e3 * (time.perf_counter() - start))
-            if lods is driven:
+            if also_alone:
                 start = time.perf_counter()
                 decode_batch(alone, weights)
                 alone_ms.append(1e3 * (time.perf_counter() - start))
@@ -335,7 +335,7 @@ def decode_model(context, avatars, repeats: int = 3) -> dict:
 
     uniform = [wall([lod] * len(avatars)) for lod in (1.0, 0.5, 0.0)]
     per_texel, fixed = np.polyfit([t for _, t in uniform], [ms for ms, _ in uniform], 1)
-    driven_ms, driven_texels = wall(driven)
+    driven_ms, driven_texels = wall(driven, also_alone=True)
     lod0_ms, lod0_texels = uniform[-1]
     return {
         "decode_ms_driven_posed_alone": round(statistics.median(alone_ms), 1),

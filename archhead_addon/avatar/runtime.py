@@ -200,17 +200,13 @@ class AvatarRuntime:
         (benchmarks/crowd.py). Expressions of different widths are zero-padded."""
         if not codes:
             return []
-        exprs = [
-            np.zeros(0) if c.get("expr") is None else _code(c["expr"], np.size(c["expr"]), "expr")
-            for c in codes
-        ]
-        width = max(len(e) for e in exprs)
+        width = max((np.size(c["expr"]) for c in codes if c.get("expr") is not None), default=0)
         batch = {
             name: np.stack([_code(c.get(name), size, name) for c in codes])
             for name, size in (("neck", 3), ("jaw", JAW_DIM), ("eyes", EYES_DIM))
         }
         if width:
-            batch["expr"] = np.stack([_code(e, width, "expr", pad=True) for e in exprs])
+            batch["expr"] = np.stack([_code(c.get("expr"), width, "expr", pad=True) for c in codes])
         head = forward_full(self.head, dtype=F32, **batch)
         return [PosedHead(v, j[0]) for v, j in zip(head.vertices, head.joints, strict=True)]
 
